@@ -1,0 +1,26 @@
+"""The twin's small error hierarchy: every error a user can cause is one of these.
+
+The command line turns them into exit code 2 and a one-line message; nodes turn them into
+refused parameter sets or a clean start-up failure. Nothing else should reach the user as a
+traceback.
+"""
+
+
+class TwinError(Exception):
+    """Base class of every error caused by input to the twin (not by a bug in it)."""
+
+
+class ParameterError(TwinError, ValueError):
+    """A physical or numerical parameter is unknown, non-finite or out of its bounds."""
+
+
+class ModelError(TwinError, ValueError):
+    """An unknown valve model name, or a model that failed to compute (e.g. no convergence)."""
+
+
+class ScenarioError(TwinError, ValueError):
+    """A scenario file or dict is malformed: unknown key, bad breakpoint, non-numeric value."""
+
+
+class BagError(TwinError):
+    """A bag directory or MCAP file is missing, truncated, corrupt or not of the twin's layout."""

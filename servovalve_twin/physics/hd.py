@@ -1,0 +1,263 @@
+"""The high-fidelity (HD) four-edge servovalve reference (MODELS.md section 3) and the
+calibration of the simplified models' gains from it.
+
+Edges (lap L > 0 overlap, < 0 underlap): ``x_S1 = XS - L_S1``, ``x_2R = XS - L_2R``,
+``x_S2 = -XS - L_S2``, ``x_1R = -XS - L_1R``. Each passage is a turbulent orifice of width w
+and opening d (clearance c and corner radius r included) in series with a laminar gap of length
+l when covered: ``dp = R_l*Q + R_t*Q*|Q|``, inverted in the cancellation-free form
+``Q = sign(dp)*2|dp|/(R_l + sqrt(R_l^2 + 4*R_t*|dp|))``.
+
+Port continuity (incompressible default) ``F1(P1, P2) = F2(P1, P2) = 0`` is solved by a 2x2
+Newton warm-started from the previous step (its Jacobian is exact and diagonally dominant:
+each F_i is strictly decreasing in P_i, the leakage couples them by +CLk), with a bracketed
+per-port Gauss-Seidel fallback. The compressible option makes P1, P2 states and integrates
+them by backward Euler, which is the same root problem with a capacitance V/(beta*DT) added to
+the diagonal -- so one solver serves both, and the stiff laminar null does not limit DT.
+Over-pressure (P_i > PS: reverse flow into supply) is allowed: it is how |P12| exceeds PSR when
+the jack brakes or is over-run. A port below Pcav is clamped (a vapour cavity) and flagged.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..errors import ModelError
+from .params import EhaParams
+from .valve_state import (V_CALLS, V_CAV, V_FAIL, V_ITER, V_MAXITER, V_NCAV, V_P1, V_P2,
+                           V_P12, V_XJ, new_state)
+
+_TOL = 1.0e-4          # Pa: Newton converges quadratically, so the last step is far below this
+_NEWTON_MAX = 40
+_GS_MAX = 200
+_G_CAP = 1.0e-3        # m^3/(s*Pa): caps dQ/ddp of a pure orifice at dp = 0 (infinite there)
+
+
+@njit(cache=True, inline='always')
+def edge_resistances(x, P):
+    """(R_l, R_t) of an edge with opening x [m]: laminar [Pa*s/m^3] and turbulent [Pa*s^2/m^6]."""
+    r = P.r
+    c = P.c
+    if x >= -r:
+        # open, or on the rounded corner: orifice opening from the land corner to the bore
+        d = math.sqrt((x + r) ** 2 + (c + r) ** 2) - r
+        ell = 0.0
+    else:
+        # covered: the radial clearance is the orifice and the overlap a laminar gap
+        d = c
+        ell = -x - r
+    cwd = P.Cd * P.w * d
+    return 12.0 * P.mu * ell / (P.w * c ** 3), P.rho / (2.0 * cwd * cwd)
+
+
+@njit(cache=True, inline='always')
+def edge_flow(rl, rt, dp):
+    """Flow [m^3/s] through an edge under dp [Pa] and its conductance dQ/ddp."""
+    a = abs(dp)
+    q = 2.0 * a / (rl + math.sqrt(rl * rl + 4.0 * rt * a))
+    den = rl + 2.0 * rt * q
+    g = 1.0 / den if den > 1.0 / _G_CAP else _G_CAP
+    if dp < 0.0:
+        q = -q
+    return q, g
+
+
+@njit(cache=True, inline='always')
+def _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p):
+    """F(p) = Q_in(PS - p) - Q_out(p - PR) + b - gdiag*p and dF/dp (< 0)."""
+    qi, gi = edge_flow(rli, rti, ps - p)
+    qo, go = edge_flow(rlo, rto, p - pr)
+    return qi - qo + b - gdiag * p, -(gi + go + gdiag)
+
+
+@njit(cache=True)
+def _solve_port(rli, rti, rlo, rto, ps, pr, b, gdiag, p0, span):
+    """Root of the strictly decreasing port residual: Newton kept inside a bracket that is
+    grown from the warm start ``p0`` (steps of ``span``) and bisected when Newton leaves it."""
+    f, df = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p0)
+    if f == 0.0:
+        return p0, 1, True
+    # bracket: F(lo) > 0 > F(hi)
+    step = span
+    if f > 0.0:
+        lo, hi = p0, p0 + step
+        while _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, hi)[0] > 0.0:
+            lo = hi
+            step *= 2.0
+            hi = p0 + step
+            if step > 1.0e12:
+                return p0, 0, False
+    else:
+        lo, hi = p0 - step, p0
+        while _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, lo)[0] < 0.0:
+            hi = lo
+            step *= 2.0
+            lo = p0 - step
+            if step > 1.0e12:
+                return p0, 0, False
+    p = p0 if lo < p0 < hi else 0.5 * (lo + hi)
+    for it in range(1, 200):
+        f, df = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p)
+        if f > 0.0:
+            lo = p
+        else:
+            hi = p
+        pn = p - f / df
+        if not (lo < pn < hi):
+            pn = 0.5 * (lo + hi)
+        if abs(pn - p) < _TOL or hi - lo < _TOL:
+            return pn, it, True
+        p = pn
+    return p, 200, False
+
+
+@njit(cache=True)
+def hd_solve(xs, qj, psr, P, vs):
+    """Port pressures (P1, P2) of the four-edge valve; updates the warm start and diagnostics
+    in ``vs``. Returns P12 = P1 - P2 [Pa]."""
+    pr = P.PR
+    ps = psr + pr
+    rl_s1, rt_s1 = edge_resistances(xs - P.L_S1, P)
+    rl_2r, rt_2r = edge_resistances(xs - P.L_2R, P)
+    rl_s2, rt_s2 = edge_resistances(-xs - P.L_S2, P)
+    rl_1r, rt_1r = edge_resistances(-xs - P.L_1R, P)
+    clk = P.CLk
+    p1 = vs[V_P1]
+    p2 = vs[V_P2]
+    if not (math.isfinite(p1) and math.isfinite(p2)):
+        p1 = p2 = 0.5 * (ps + pr)
+    # compressible: backward Euler adds C*(P - P_old), C = V/(beta*DT), to each port
+    if P.compressible != 0.0:
+        v1 = P.V0 + P.AJ * vs[V_XJ]
+        v2 = P.V0 - P.AJ * vs[V_XJ]
+        c1 = v1 / (P.beta * P.DT)
+        c2 = v2 / (P.beta * P.DT)
+    else:
+        c1 = 0.0
+        c2 = 0.0
+    p1_old = p1
+    p2_old = p2
+    ok = False
+    it = 0
+    while it < _NEWTON_MAX:
+        it += 1
+        qa, ga = edge_flow(rl_s1, rt_s1, ps - p1)
+        qb, gb = edge_flow(rl_1r, rt_1r, p1 - pr)
+        qc, gc = edge_flow(rl_s2, rt_s2, ps - p2)
+        qd, gd = edge_flow(rl_2r, rt_2r, p2 - pr)
+        leak = clk * (p1 - p2)
+        f1 = qa - qb - qj - leak - c1 * (p1 - p1_old)
+        f2 = qc - qd + qj + leak - c2 * (p2 - p2_old)
+        a1 = ga + gb + clk + c1
+        a2 = gc + gd + clk + c2
+        det = a1 * a2 - clk * clk
+        d1 = (a2 * f1 + clk * f2) / det
+        d2 = (clk * f1 + a1 * f2) / det
+        # limit a step to the supply span: the orifice law is far from linear across it
+        lim = 0.5 * psr + 1.0e5
+        if abs(d1) > lim:
+            d1 = lim if d1 > 0 else -lim
+        if abs(d2) > lim:
+            d2 = lim if d2 > 0 else -lim
+        p1 += d1
+        p2 += d2
+        if abs(d1) < _TOL and abs(d2) < _TOL:
+            ok = True
+            break
+    if not ok:
+        # bracketed per-port Gauss-Seidel: slower, but cannot wander
+        p1 = p1_old
+        p2 = p2_old
+        span = 0.05 * psr + 1.0e4
+        for gs in range(_GS_MAX):
+            p1n, n1, ok1 = _solve_port(rl_s1, rt_s1, rl_1r, rt_1r, ps, pr,
+                                       -qj + clk * p2 + c1 * p1_old, clk + c1, p1, span)
+            p2n, n2, ok2 = _solve_port(rl_s2, rt_s2, rl_2r, rt_2r, ps, pr,
+                                       qj + clk * p1n + c2 * p2_old, clk + c2, p2, span)
+            it += n1 + n2
+            if not (ok1 and ok2):
+                break
+            done = abs(p1n - p1) < _TOL and abs(p2n - p2) < _TOL
+            p1 = p1n
+            p2 = p2n
+            if done:
+                ok = True
+                break
+    cav = 0
+    if p1 < P.Pcav:
+        p1 = P.Pcav
+        cav += 1
+    if p2 < P.Pcav:
+        p2 = P.Pcav
+        cav += 2
+    vs[V_P1] = p1
+    vs[V_P2] = p2
+    vs[V_P12] = p1 - p2
+    vs[V_ITER] = it
+    if it > vs[V_MAXITER]:
+        vs[V_MAXITER] = it
+    vs[V_CAV] = cav
+    if cav:
+        vs[V_NCAV] += 1
+    vs[V_CALLS] += 1
+    if not ok:
+        vs[V_FAIL] = 1.0
+    return p1 - p2
+
+
+def hd_ports(xs: float, qj: float, psr: float, params: EhaParams,
+             state: np.ndarray | None = None) -> tuple[float, float, float, np.ndarray]:
+    """Static HD operating point from Python: (P12, P1, P2, state) [Pa]; raises on failure."""
+    P = params.replace(compressible=False).kernel()
+    vs = new_state(0.5 * (psr + 2 * params.PR)) if state is None else state.copy()
+    p12 = hd_solve(float(xs), float(qj), float(psr), P, vs)
+    if vs[V_FAIL]:
+        raise ModelError(f'HD port continuity did not converge at XS={xs!r} m, QJ={qj!r} m^3/s,'
+                         f' PSR={psr!r} Pa')
+    return p12, vs[V_P1], vs[V_P2], vs
+
+
+def _bisect(fn, lo: float, hi: float, target: float, n: int = 200) -> float:
+    """x in [lo, hi] with fn(x) = target for an increasing fn (used only by the calibration)."""
+    flo = fn(lo) - target
+    fhi = fn(hi) - target
+    if flo * fhi > 0:
+        raise ModelError(f'calibration: target {target:g} not bracketed in [{lo:g}, {hi:g}]')
+    for _ in range(n):
+        mid = 0.5 * (lo + hi)
+        fm = fn(mid) - target
+        if (fm > 0) == (fhi > 0):
+            hi, fhi = mid, fm
+        else:
+            lo, flo = mid, fm
+        if hi - lo <= 1e-15 * max(abs(lo), abs(hi), 1e-30):
+            break
+    return 0.5 * (lo + hi)
+
+
+def calibrate(params: EhaParams) -> dict[str, float]:
+    """XSS, GPN, GQN, GPQ, k of the simplified models from the leak-free HD valve (MODELS.md
+    section 3): the simplified models add leakage themselves through k = CLk*GPQ.
+
+    - XSS from the mean slope of the zero-flow P12(XS) curve between -40 % and +40 % of PSRN:
+      GP = 0.8*PSRN/(x(+40 %) - x(-40 %)), XSS = PSRN/GP;
+    - GQN = QJ(XSM, P12 = 0)/XSM at PSRN; GPQ = GP/GQN; k = CLk*GPQ with the given CLk.
+    """
+    leak_free = params.replace(CLk=0.0, compressible=False)
+    psrn = params.PSRN
+
+    def p12_of_xs(xs):
+        return hd_ports(xs, 0.0, psrn, leak_free)[0]
+
+    x_pos = _bisect(p12_of_xs, -params.XSM, params.XSM, 0.4 * psrn)
+    x_neg = _bisect(p12_of_xs, -params.XSM, params.XSM, -0.4 * psrn)
+    gp = 0.8 * psrn / (x_pos - x_neg)
+    xss = psrn / gp
+    q_max = 4.0 * params.Cd * params.w * params.XSM * math.sqrt(2.0 * psrn / params.rho)
+    # P12 falls as QJ grows: bisect on -P12
+    qj0 = _bisect(lambda q: -hd_ports(params.XSM, q, psrn, leak_free)[0], 0.0, q_max, 0.0)
+    gqn = qj0 / params.XSM
+    gpq = gp / gqn
+    return dict(XSS=xss, GPN=gp, GQN=gqn, GPQ=gpq, k=params.CLk * gpq)

@@ -1,0 +1,272 @@
+"""Scenarios: the command Com, the external load FR and the supply pressure PSR as functions of
+simulated time, loaded from YAML with every key checked.
+
+Schema (unknown keys are an error; times in s, Com in m, FR in N, PSR in Pa)::
+
+    name: my_run                                      # optional
+    description: free text                            # optional
+    duration: 1.0                                     # s, a whole number of ms (default 1.0)
+    com: [[0.0, 0.02], [0.30, 0.03]]                  # steps: [t, value], held until the next
+    fr:  {ramp: [[0.0, 0.0], [0.5, 5000.0]]}          # linear between points, held at the ends
+    psr: {sine: {offset: 20.0e+6, amplitude: 1.0e+6, frequency: 2.0, phase: 0.0, start: 0.0}}
+    params: {CLk: 2.0e-12}                            # parameter overrides (optional)
+    windows: {drop: [0.35, 0.45]}                     # named analysis windows (optional)
+
+A missing signal takes its default (Com 0 m, FR 0 N, PSR = 20 MPa), so ``{}`` is a valid
+scenario. Breakpoints apply to every integration step whose start, in integer nanoseconds, is at
+or after them (MODELS.md section 9): 1.0/1e-5 is not an integer in floating point.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import ScenarioError
+
+SIGNALS = ('com', 'fr', 'psr')
+SIGNAL_UNITS = {'com': 'm', 'fr': 'N', 'psr': 'Pa'}
+_DEFAULT_VALUE = {'com': 0.0, 'fr': 0.0, 'psr': 20.0e6}
+_KEYS = {'name', 'description', 'duration', 'params', 'windows'} | set(SIGNALS)
+_SINE_KEYS = {'offset', 'amplitude', 'frequency', 'phase', 'start'}
+_MAX_DURATION = 3600.0
+
+
+def _number(value: Any, where: str) -> float:
+    """A finite float from a number or a numeric string (YAML 1.1 reads ``2e-13`` as text)."""
+    if isinstance(value, bool):
+        raise ScenarioError(f'{where}: expected a number, got {value!r}')
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ScenarioError(f'{where}: expected a number, got {value!r}') from None
+    if not math.isfinite(x):
+        raise ScenarioError(f'{where}: expected a finite number, got {value!r}')
+    return x
+
+
+def _ns(t: float) -> int:
+    return int(round(t * 1e9))
+
+
+@dataclasses.dataclass(frozen=True)
+class Profile:
+    """One input signal: ``kind`` is 'steps', 'ramp' or 'sine'."""
+
+    kind: str
+    points: tuple[tuple[float, float], ...] = ()
+    sine: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def values(self, t_ns: np.ndarray) -> np.ndarray:
+        """The signal at the integer-nanosecond times ``t_ns``."""
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        if self.kind == 'steps':
+            bp = np.array([_ns(t) for t, _ in self.points], dtype=np.int64)
+            vals = np.array([v for _, v in self.points])
+            return vals[np.searchsorted(bp, t_ns, side='right') - 1]
+        if self.kind == 'ramp':
+            ts = np.array([t for t, _ in self.points])
+            vals = np.array([v for _, v in self.points])
+            return np.interp(t_ns * 1e-9, ts, vals)
+        offset, amplitude, frequency, phase, start = self.sine
+        t = (t_ns - _ns(start)) * 1e-9
+        out = offset + amplitude * np.sin(2.0 * math.pi * frequency * t + phase)
+        return np.where(t >= 0.0, out, offset)
+
+    def value(self, t_ns: int) -> float:
+        return float(self.values(np.array([t_ns]))[0])
+
+    def breakpoints(self) -> list[float]:
+        """Times where the signal changes regime (phase boundaries for comparisons)."""
+        if self.kind == 'sine':
+            return [self.sine[4]] if self.sine[4] > 0 else []
+        return [t for t, _ in self.points if t > 0]
+
+    def to_yaml(self) -> Any:
+        if self.kind == 'steps':
+            return [list(p) for p in self.points]
+        if self.kind == 'ramp':
+            return {'ramp': [list(p) for p in self.points]}
+        return {'sine': dict(zip(('offset', 'amplitude', 'frequency', 'phase', 'start'),
+                                 self.sine))}
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """A complete run description: inputs, duration, parameter overrides, analysis windows."""
+
+    name: str
+    duration: float
+    com: Profile
+    fr: Profile
+    psr: Profile
+    params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    windows: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    description: str = ''
+
+    @property
+    def duration_ns(self) -> int:
+        return _ns(self.duration)
+
+    def inputs(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Com, FR, PSR) at the integer-nanosecond times ``t_ns``."""
+        return self.com.values(t_ns), self.fr.values(t_ns), self.psr.values(t_ns)
+
+    def phases(self) -> list[tuple[float, float]]:
+        """The run split at every breakpoint of every signal: [(t0, t1), ...]."""
+        cuts = sorted({0.0, self.duration, *[t for s in SIGNALS
+                                               for t in getattr(self, s).breakpoints()
+                                               if t < self.duration]})
+        return list(zip(cuts[:-1], cuts[1:]))
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = dict(name=self.name, duration=self.duration)
+        if self.description:
+            out['description'] = self.description
+        for s in SIGNALS:
+            out[s] = getattr(self, s).to_yaml()
+        if self.params:
+            out['params'] = dict(self.params)
+        if self.windows:
+            out['windows'] = {k: list(v) for k, v in self.windows.items()}
+        return out
+
+
+def _profile(raw: Any, signal: str, duration: float) -> Profile:
+    where = f'scenario.{signal}'
+    if raw is None:
+        return Profile('steps', ((0.0, _DEFAULT_VALUE[signal]),))
+    kind = 'steps'
+    if isinstance(raw, Mapping):
+        if len(raw) != 1 or next(iter(raw)) not in ('steps', 'ramp', 'sine'):
+            raise ScenarioError(f'{where}: expected a list of [t, value] breakpoints or one of '
+                                f"{{steps: ...}}, {{ramp: ...}}, {{sine: ...}}; got keys "
+                                f'{sorted(map(str, raw))}')
+        kind, raw = next(iter(raw.items()))
+        where = f'{where}.{kind}'
+    if kind == 'sine':
+        if not isinstance(raw, Mapping):
+            raise ScenarioError(f'{where}: expected a mapping with keys {sorted(_SINE_KEYS)}')
+        unknown = set(raw) - _SINE_KEYS
+        if unknown:
+            raise ScenarioError(f'{where}: unknown key {sorted(unknown)[0]!r}; allowed '
+                                f'{sorted(_SINE_KEYS)}')
+        vals = tuple(_number(raw.get(k, 0.0), f'{where}.{k}')
+                     for k in ('offset', 'amplitude', 'frequency', 'phase', 'start'))
+        if vals[2] < 0:
+            raise ScenarioError(f'{where}.frequency must be >= 0 Hz, got {vals[2]}')
+        return Profile('sine', sine=vals)
+    if not isinstance(raw, (list, tuple)) or not raw:
+        raise ScenarioError(f'{where}: expected a non-empty list of [t, value] breakpoints, '
+                            f'got {raw!r}')
+    points = []
+    for i, item in enumerate(raw):
+        if not isinstance(item, (list, tuple)) or len(item) != 2:
+            raise ScenarioError(f'{where}[{i}]: expected [t, value], got {item!r}')
+        points.append((_number(item[0], f'{where}[{i}] time'),
+                       _number(item[1], f'{where}[{i}] value')))
+    times = [t for t, _ in points]
+    if points[0][0] != 0.0:
+        raise ScenarioError(f'{where}: the first breakpoint must be at t = 0, got {times[0]}')
+    if any(b <= a for a, b in zip(times, times[1:])):
+        raise ScenarioError(f'{where}: breakpoint times must increase strictly, got {times}')
+    if times[-1] > duration:
+        raise ScenarioError(f'{where}: breakpoint at t = {times[-1]} s lies after the duration '
+                            f'{duration} s')
+    return Profile(kind, tuple(points))
+
+
+def scenario_from_dict(raw: Mapping[str, Any], name: str = 'scenario') -> Scenario:
+    """Validate a scenario mapping (as read from YAML) into a :class:`Scenario`."""
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, Mapping):
+        raise ScenarioError(f'a scenario must be a mapping with keys {sorted(_KEYS)}, '
+                            f'got {type(raw).__name__}')
+    unknown = set(raw) - _KEYS
+    if unknown:
+        raise ScenarioError(f'unknown scenario key {sorted(map(str, unknown))[0]!r}; allowed '
+                            f'{sorted(_KEYS)}')
+    duration = _number(raw.get('duration', 1.0), 'scenario.duration')
+    if not 0.0 < duration <= _MAX_DURATION:
+        raise ScenarioError(f'scenario.duration must be in (0, {_MAX_DURATION:g}] s, '
+                            f'got {duration}')
+    if _ns(duration) % 1_000_000:
+        raise ScenarioError(f'scenario.duration must be a whole number of milliseconds (output '
+                            f'rows are 1 ms apart), got {duration}')
+    profiles = {s: _profile(raw.get(s), s, duration) for s in SIGNALS}
+    params = raw.get('params') or {}
+    if not isinstance(params, Mapping):
+        raise ScenarioError(f'scenario.params must be a mapping NAME: value, got {params!r}')
+    from .params import ParameterError, coerce
+    try:
+        params = {str(k): coerce(str(k), v) for k, v in params.items()}
+    except ParameterError as exc:
+        raise ScenarioError(f'scenario.params: {exc}') from None
+    windows = {}
+    for wname, span in (raw.get('windows') or {}).items():
+        if not isinstance(span, (list, tuple)) or len(span) != 2:
+            raise ScenarioError(f'scenario.windows.{wname}: expected [t0, t1], got {span!r}')
+        t0, t1 = (_number(v, f'scenario.windows.{wname}') for v in span)
+        if not 0.0 <= t0 < t1 <= duration:
+            raise ScenarioError(f'scenario.windows.{wname}: need 0 <= t0 < t1 <= duration, '
+                                f'got [{t0}, {t1}]')
+        windows[str(wname)] = (t0, t1)
+    return Scenario(name=str(raw.get('name', name)), duration=duration, params=params,
+                    windows=windows, description=str(raw.get('description', '')), **profiles)
+
+
+def config_dir() -> Path:
+    """The ``config/`` directory: the source tree's (editable installs), else the one
+    installed under ``share/servovalve_twin`` (pip's data_files or colcon)."""
+    candidates = [Path(__file__).resolve().parents[2] / 'config',
+                  Path(sys.prefix) / 'share' / 'servovalve_twin' / 'config']
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        candidates.append(Path(get_package_share_directory('servovalve_twin')) / 'config')
+    except Exception:  # noqa: BLE001 -- ament index absent or package not registered there
+        pass
+    for path in candidates:
+        if (path / 'eha.yaml').is_file():
+            return path
+    raise ScenarioError('cannot find the config/ directory (eha.yaml) of servovalve_twin; '
+                        f'looked in {[str(p) for p in candidates]}')
+
+
+def builtin_scenarios() -> dict[str, Path]:
+    """Name -> file of the scenarios shipped in ``config/scenarios``."""
+    return {p.stem: p for p in sorted((config_dir() / 'scenarios').glob('*.yaml'))}
+
+
+def read_yaml(path: Path, what: str) -> Any:
+    import yaml
+    try:
+        with open(path, encoding='utf-8') as fh:
+            return yaml.safe_load(fh)
+    except OSError as exc:
+        raise ScenarioError(f'cannot read {what} {str(path)!r}: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f'{what} {str(path)!r} is not valid YAML: '
+                            f'{str(exc).splitlines()[0]}') from None
+
+
+def load_scenario(spec: str | Path | Mapping[str, Any] | Scenario) -> Scenario:
+    """A scenario by built-in name (``paper``), YAML file path, mapping, or as is."""
+    if isinstance(spec, Scenario):
+        return spec
+    if isinstance(spec, Mapping):
+        return scenario_from_dict(spec)
+    text = str(spec)
+    builtins = builtin_scenarios()
+    if text in builtins:
+        return scenario_from_dict(read_yaml(builtins[text], 'scenario'), name=text)
+    path = Path(text)
+    if path.suffix in ('.yaml', '.yml') or path.exists():
+        return scenario_from_dict(read_yaml(path, 'scenario file'), name=path.stem)
+    raise ScenarioError(f'unknown scenario {text!r}: not a built-in name {sorted(builtins)} '
+                        'and not a YAML file')

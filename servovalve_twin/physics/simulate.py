@@ -1,0 +1,231 @@
+"""ROS-free runs: :func:`simulate` (a whole scenario in one compiled call) and :class:`EhaPlant`
+(the stateful plant the ROS node advances one control period at a time). Both go through
+:func:`~.plant.plant_step`.
+
+Run conventions (MODELS.md section 9): time is an integer count of DT steps; inputs are held
+over a step; output row i holds t_i = i*1 ms, the state at t_i, and the inputs, Cor and P12 in
+force on the step that starts at t_i.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import ModelError, ParameterError, TwinError
+from .ecu import ecu_current
+from .params import DEFAULTS, EhaParams
+from .plant import OUT_COLUMNS, TICK_OUT, run_steps, run_tick
+from .scenario import Scenario, load_scenario
+from .servovalve import S_DXJ, S_SIZE, S_XJ, S_XS
+from .valve_state import V_CALLS, V_MAXITER, V_NCAV, V_NONCONV, V_P1, V_P2, V_P12
+from .valves import ValveModel, get_valve_model
+
+OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
+CSV_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj')
+PORT_COLUMNS = ('p1', 'p2')
+SIGNAL_UNITS = dict(t='s', com='m', fr='N', psr='Pa', cor='A', xs='m', xj='m', dxj='m/s',
+                    p12='Pa', qj='m^3/s', p1='Pa', p2='Pa')
+
+
+def effective_params(scenario: Scenario, overrides: Mapping[str, Any] | None = None,
+                     base: EhaParams | None = None) -> EhaParams:
+    """Defaults, then the scenario's ``params``, then the user's overrides (later wins)."""
+    return (base or DEFAULTS).replace(**dict(scenario.params)).replace(**dict(overrides or {}))
+
+
+def steps_per(period_s: float, params: EhaParams, what: str) -> int:
+    """How many DT steps make ``period_s``; it must be a whole number of them."""
+    if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
+        raise ParameterError(f'{what} must be a positive number of seconds, got {period_s!r}')
+    period_ns = int(round(period_s * 1e9))
+    if abs(period_s * 1e9 - period_ns) > 1e-6 or period_ns % params.dt_ns:
+        raise ParameterError(f'{what} = {period_s} s must be a whole multiple of DT = '
+                             f'{params.DT} s')
+    return period_ns // params.dt_ns
+
+
+@dataclasses.dataclass
+class RunResult:
+    """A run's labelled signals (1 ms rows, SI units) and its provenance and diagnostics."""
+
+    valve_model: str
+    scenario: Scenario
+    params: EhaParams
+    signals: dict[str, np.ndarray]
+    ecu_period: float | None = None
+    info: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.signals[name]
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return tuple(self.signals)
+
+    def window(self, t0: float, t1: float, closed: bool = False) -> np.ndarray:
+        """Boolean mask of the rows with t0 <= t < t1 (<= t1 when ``closed``), in whole ms."""
+        ms = np.rint(self.signals['t'] * 1000).astype(np.int64)
+        a, b = int(round(t0 * 1000)), int(round(t1 * 1000))
+        return (ms >= a) & ((ms <= b) if closed else (ms < b))
+
+    def to_csv(self, path: str | Path) -> None:
+        write_csv(path, self.signals)
+
+
+def write_csv(path: str | Path, signals: Mapping[str, np.ndarray]) -> None:
+    """CSV with a header row; 17 significant digits so that values round-trip exactly."""
+    cols = list(signals)
+    rows = np.column_stack([np.asarray(signals[c], dtype=float) for c in cols])
+    with open(path, 'w', newline='', encoding='utf-8') as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for r in rows:
+            w.writerow([repr(float(v)) for v in r])
+
+
+def read_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """The signals of a CSV written by :func:`write_csv` (``simulate --out``)."""
+    try:
+        with open(path, newline='', encoding='utf-8') as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise TwinError(f'cannot read CSV {str(path)!r}: {exc.strerror}') from None
+    except UnicodeDecodeError:
+        raise TwinError(f'{str(path)!r} is not a text CSV file') from None
+    if not rows or 't' not in rows[0]:
+        raise TwinError(f'{str(path)!r} is not a run CSV: expected a header row with columns '
+                        f'{",".join(CSV_COLUMNS)}')
+    header = rows[0]
+    try:
+        data = np.array([[float(v) for v in r] for r in rows[1:] if r], dtype=float)
+    except ValueError as exc:
+        raise TwinError(f'{str(path)!r}: non-numeric value ({exc})') from None
+    if data.ndim != 2 or data.shape[0] == 0 or data.shape[1] != len(header):
+        raise TwinError(f'{str(path)!r}: rows do not match the header of {len(header)} columns')
+    return {name: data[:, i] for i, name in enumerate(header)}
+
+
+def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
+             overrides: Mapping[str, Any] | None = None, *, ecu_period: float | None = None,
+             params: EhaParams | None = None) -> RunResult:
+    """Run ``scenario`` with ``valve_model``, ROS-free, in one compiled loop.
+
+    :param valve_model: a name of :data:`~.valves.VALVE_MODELS`
+    :param scenario: 'paper', a YAML path, a mapping or a :class:`Scenario`
+    :param overrides: parameter name -> value, applied after the scenario's own ``params``
+    :param ecu_period: sample the ECU with this period [s] (a multiple of DT); None = continuous
+    :param params: base parameters (default :data:`~.params.DEFAULTS`)
+    :raises TwinError: bad model name, parameter, scenario, period; valve failure
+    """
+    model = get_valve_model(valve_model)
+    scn = load_scenario(scenario)
+    p = effective_params(scn, overrides, params)
+    out_every = steps_per(OUTPUT_PERIOD_NS * 1e-9, p, 'the 1 ms output period')
+    ecu_every = 0 if ecu_period is None else steps_per(ecu_period, p, 'the ECU period')
+    n_steps = scn.duration_ns // p.dt_ns
+    if n_steps * p.dt_ns != scn.duration_ns:
+        raise ParameterError(f'duration {scn.duration} s is not a whole number of DT = {p.DT} s')
+    t_ns = np.arange(n_steps + 1, dtype=np.int64) * p.dt_ns
+    com, fr, psr = scn.inputs(t_ns)
+    n_rows = n_steps // out_every + 1
+    out = np.full((n_rows, len(OUT_COLUMNS)), np.nan)
+    s = np.zeros(S_SIZE)
+    vs = model.initial_state(p)
+    wall = time.perf_counter()
+    failed = run_steps(model.fn, s, vs, p.kernel(), com, fr, psr, ecu_every, out_every, out)
+    wall = time.perf_counter() - wall
+    if failed >= 0:
+        raise ModelError(f'valve model {model.name} failed to converge at t = '
+                         f'{failed * p.DT:.6f} s')
+    out[:, 0] = np.arange(n_rows) * (OUTPUT_PERIOD_NS * 1e-9)
+    cols = CSV_COLUMNS + (PORT_COLUMNS if model.has_ports else ())
+    signals = {c: out[:, OUT_COLUMNS.index(c)].copy() for c in cols}
+    return RunResult(valve_model=model.name, scenario=scn, params=p, signals=signals,
+                     ecu_period=ecu_period, info=dict(_diagnostics(model, vs), steps=n_steps,
+                                                      wall_s=wall))
+
+
+def _diagnostics(model: ValveModel, vs: np.ndarray) -> dict[str, Any]:
+    if not model.iterative and not model.has_ports:
+        return {}
+    return dict(valve_calls=int(vs[V_CALLS]), max_iterations=int(vs[V_MAXITER]),
+                nonconverged_calls=int(vs[V_NONCONV]), cavitating_calls=int(vs[V_NCAV]))
+
+
+class EhaPlant:
+    """The plant as an object advanced one control period at a time (the ROS plant's physics).
+
+    It owns the mechanical state (XF, DXF, XS, XJ, DXJ) and the valve state; switching the valve
+    model keeps the mechanical state and gives the new model a fresh valve state whose warm
+    start is the last P12 and port pressures.
+    """
+
+    def __init__(self, valve_model: str = 'C2', params: EhaParams | None = None):
+        self.params = params or DEFAULTS
+        self._kernel = self.params.kernel()
+        self.model = get_valve_model(valve_model)
+        self.s = np.zeros(S_SIZE)
+        self.vs = self.model.initial_state(self.params)
+        self.last = np.full(len(TICK_OUT), np.nan)
+
+    @property
+    def xs(self) -> float:
+        return float(self.s[S_XS])
+
+    @property
+    def xj(self) -> float:
+        return float(self.s[S_XJ])
+
+    @property
+    def dxj(self) -> float:
+        return float(self.s[S_DXJ])
+
+    def set_valve_model(self, name: str) -> None:
+        """Continue with another fluid model; mechanical state kept, warm starts carried."""
+        new = get_valve_model(name)
+        if new is self.model:
+            return
+        old_vs = self.vs
+        self.vs = new.initial_state(self.params, self.xj)
+        self.vs[V_P12] = old_vs[V_P12]
+        if self.model.has_ports:
+            self.vs[V_P1] = old_vs[V_P1]
+            self.vs[V_P2] = old_vs[V_P2]
+        self.model = new
+
+    def set_params(self, params: EhaParams) -> None:
+        """Continue with new parameters (a fault, a retune); the state is kept."""
+        self.params = params
+        self._kernel = params.kernel()
+
+    def control(self, com: float, xj: float) -> float:
+        """The ECU law (the same compiled function :func:`simulate` uses)."""
+        return float(ecu_current(float(com), float(xj), self._kernel))
+
+    def tick(self, cor: float, fr: float, psr: float, n_sub: int) -> np.ndarray:
+        """Advance ``n_sub`` steps with Cor, FR, PSR held; returns P12, QJ, P1, P2 at the tick's
+        start (``n_sub`` = 0: evaluate only)."""
+        for label, v in (('Cor', cor), ('FR', fr), ('PSR', psr)):
+            if not math.isfinite(v):
+                raise ModelError(f'{label} must be finite, got {v!r}')
+        failed = run_tick(self.model.fn, self.s, self.vs, self._kernel, float(cor), float(fr),
+                          float(psr), int(n_sub), self.last)
+        if failed >= 0:
+            raise ModelError(f'valve model {self.model.name} failed to converge')
+        if not self.model.has_ports:
+            self.last[2:] = np.nan
+        return self.last
+
+    def diagnostics(self) -> dict[str, Any]:
+        return _diagnostics(self.model, self.vs)
+
+
+__all__ = ['simulate', 'RunResult', 'EhaPlant', 'read_csv', 'write_csv', 'effective_params',
+           'CSV_COLUMNS', 'PORT_COLUMNS', 'SIGNAL_UNITS']

@@ -1,0 +1,42 @@
+"""ament_python package: `colcon build` installs the node executables under
+lib/servovalve_twin/ (setup.cfg) so that `ros2 run servovalve_twin <node>` finds them; a plain
+`pip install` puts the same console scripts in bin/."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'servovalve_twin'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config/scenarios', glob('config/scenarios/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+    ],
+    install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'matplotlib'],
+    python_requires='>=3.10',
+    zip_safe=False,
+    maintainer='servovalve_twin maintainers',
+    maintainer_email='maintainers@servovalve-twin.invalid',
+    description='Digital twin of an aerospace electro-hydraulic actuator (ROS 2 Jazzy).',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'servovalve-twin = servovalve_twin.cli:main',
+            'command_generator = servovalve_twin.nodes.sources:main_command_generator',
+            'scheduler = servovalve_twin.nodes.sources:main_scheduler',
+            'ecu = servovalve_twin.nodes.ecu:main',
+            'plant = servovalve_twin.nodes.plant:main',
+            'clock = servovalve_twin.nodes.clock:main',
+            'twin = servovalve_twin.twin:main',
+            'replay = servovalve_twin.bag.replay:main',
+        ],
+    },
+)
