@@ -30,7 +30,7 @@ from .valve_state import (V_CALLS, V_CAV, V_FAIL, V_ITER, V_MAXITER, V_NCAV, V_P
                            V_P12, V_XJ, new_state)
 
 _TOL = 1.0e-4          # Pa: Newton converges quadratically, so the last step is far below this
-_NEWTON_MAX = 40
+_NEWTON_MAX = 60
 _GS_MAX = 200
 _G_CAP = 1.0e-3        # m^3/(s*Pa): caps dQ/ddp of a pure orifice at dp = 0 (infinite there)
 
@@ -74,49 +74,83 @@ def _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p):
 
 @njit(cache=True)
 def _solve_port(rli, rti, rlo, rto, ps, pr, b, gdiag, p0, span):
-    """Root of the strictly decreasing port residual: Newton kept inside a bracket that is
-    grown from the warm start ``p0`` (steps of ``span``) and bisected when Newton leaves it."""
-    f, df = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p0)
-    if f == 0.0:
+    """Root of the strictly decreasing port residual by the Illinois method (regula falsi that
+    halves a stale end), inside a bracket grown from the warm start ``p0`` in doubling steps.
+    Derivative-free: the orifice law's infinite slope at dp = 0 cannot throw it off."""
+    flo = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p0)[0]
+    if flo == 0.0:
         return p0, 1, True
-    # bracket: F(lo) > 0 > F(hi)
     step = span
-    if f > 0.0:
+    n = 1
+    if flo > 0.0:
         lo, hi = p0, p0 + step
-        while _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, hi)[0] > 0.0:
-            lo = hi
+        fhi = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, hi)[0]
+        while fhi > 0.0:
+            lo, flo = hi, fhi
             step *= 2.0
             hi = p0 + step
+            fhi = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, hi)[0]
+            n += 1
             if step > 1.0e12:
-                return p0, 0, False
+                return p0, n, False
     else:
-        lo, hi = p0 - step, p0
-        while _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, lo)[0] < 0.0:
-            hi = lo
+        hi, fhi = p0, flo
+        lo = p0 - step
+        flo = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, lo)[0]
+        while flo < 0.0:
+            hi, fhi = lo, flo
             step *= 2.0
             lo = p0 - step
+            flo = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, lo)[0]
+            n += 1
             if step > 1.0e12:
-                return p0, 0, False
-    p = p0 if lo < p0 < hi else 0.5 * (lo + hi)
-    for it in range(1, 200):
-        f, df = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p)
+                return p0, n, False
+    side = 0
+    p_prev = lo
+    for it in range(300):
+        p = (lo * fhi - hi * flo) / (fhi - flo)
+        if not (lo < p < hi):
+            p = 0.5 * (lo + hi)
+        f = _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p)[0]
+        n += 1
+        if f == 0.0 or hi - lo < _TOL or abs(p - p_prev) < 0.01 * _TOL:
+            return p, n, True
         if f > 0.0:
-            lo = p
+            lo, flo = p, f
+            if side == 1:
+                fhi *= 0.5
+            side = 1
         else:
-            hi = p
-        pn = p - f / df
-        if not (lo < pn < hi):
-            pn = 0.5 * (lo + hi)
-        if abs(pn - p) < _TOL or hi - lo < _TOL:
-            return pn, it, True
-        p = pn
-    return p, 200, False
+            hi, fhi = p, f
+            if side == -1:
+                flo *= 0.5
+            side = -1
+        p_prev = p
+    return p, n, False
+
+
+@njit(cache=True, inline='always')
+def _continuity(p1, p2, ps, pr, qj, clk, c1, c2, p1_old, p2_old,
+                rl_s1, rt_s1, rl_1r, rt_1r, rl_s2, rt_s2, rl_2r, rt_2r):
+    """Port residuals F1, F2 [m^3/s] and minus their diagonal derivatives a1, a2 [m^3/(s*Pa)]."""
+    qa, ga = edge_flow(rl_s1, rt_s1, ps - p1)
+    qb, gb = edge_flow(rl_1r, rt_1r, p1 - pr)
+    qc, gc = edge_flow(rl_s2, rt_s2, ps - p2)
+    qd, gd = edge_flow(rl_2r, rt_2r, p2 - pr)
+    leak = clk * (p1 - p2)
+    f1 = qa - qb - qj - leak - c1 * (p1 - p1_old)
+    f2 = qc - qd + qj + leak - c2 * (p2 - p2_old)
+    return f1, f2, ga + gb + clk + c1, gc + gd + clk + c2
 
 
 @njit(cache=True)
 def hd_solve(xs, qj, psr, P, vs):
     """Port pressures (P1, P2) of the four-edge valve; updates the warm start and diagnostics
-    in ``vs``. Returns P12 = P1 - P2 [Pa]."""
+    in ``vs``. Returns P12 = P1 - P2 [Pa].
+
+    A damped 2x2 Newton: the full step is taken when it lowers |F|, else halved (the orifice
+    law's square root makes a plain Newton cycle around a root near dp = 0).
+    """
     pr = P.PR
     ps = psr + pr
     rl_s1, rt_s1 = edge_resistances(xs - P.L_S1, P)
@@ -130,44 +164,41 @@ def hd_solve(xs, qj, psr, P, vs):
         p1 = p2 = 0.5 * (ps + pr)
     # compressible: backward Euler adds C*(P - P_old), C = V/(beta*DT), to each port
     if P.compressible != 0.0:
-        v1 = P.V0 + P.AJ * vs[V_XJ]
-        v2 = P.V0 - P.AJ * vs[V_XJ]
-        c1 = v1 / (P.beta * P.DT)
-        c2 = v2 / (P.beta * P.DT)
+        c1 = (P.V0 + P.AJ * vs[V_XJ]) / (P.beta * P.DT)
+        c2 = (P.V0 - P.AJ * vs[V_XJ]) / (P.beta * P.DT)
     else:
         c1 = 0.0
         c2 = 0.0
     p1_old = p1
     p2_old = p2
+    vs[V_FAIL] = 0.0
     ok = False
     it = 0
+    f1, f2, a1, a2 = _continuity(p1, p2, ps, pr, qj, clk, c1, c2, p1_old, p2_old, rl_s1, rt_s1,
+                                 rl_1r, rt_1r, rl_s2, rt_s2, rl_2r, rt_2r)
     while it < _NEWTON_MAX:
         it += 1
-        qa, ga = edge_flow(rl_s1, rt_s1, ps - p1)
-        qb, gb = edge_flow(rl_1r, rt_1r, p1 - pr)
-        qc, gc = edge_flow(rl_s2, rt_s2, ps - p2)
-        qd, gd = edge_flow(rl_2r, rt_2r, p2 - pr)
-        leak = clk * (p1 - p2)
-        f1 = qa - qb - qj - leak - c1 * (p1 - p1_old)
-        f2 = qc - qd + qj + leak - c2 * (p2 - p2_old)
-        a1 = ga + gb + clk + c1
-        a2 = gc + gd + clk + c2
         det = a1 * a2 - clk * clk
         d1 = (a2 * f1 + clk * f2) / det
         d2 = (clk * f1 + a1 * f2) / det
-        # limit a step to the supply span: the orifice law is far from linear across it
-        lim = 0.5 * psr + 1.0e5
-        if abs(d1) > lim:
-            d1 = lim if d1 > 0 else -lim
-        if abs(d2) > lim:
-            d2 = lim if d2 > 0 else -lim
-        p1 += d1
-        p2 += d2
         if abs(d1) < _TOL and abs(d2) < _TOL:
+            p1 += d1
+            p2 += d2
             ok = True
             break
+        norm0 = f1 * f1 + f2 * f2
+        lam = 1.0
+        for _ in range(40):
+            q1 = p1 + lam * d1
+            q2 = p2 + lam * d2
+            g1, g2, b1, b2 = _continuity(q1, q2, ps, pr, qj, clk, c1, c2, p1_old, p2_old,
+                                         rl_s1, rt_s1, rl_1r, rt_1r, rl_s2, rt_s2, rl_2r, rt_2r)
+            if g1 * g1 + g2 * g2 < norm0:
+                break
+            lam *= 0.5
+        p1, p2, f1, f2, a1, a2 = q1, q2, g1, g2, b1, b2
     if not ok:
-        # bracketed per-port Gauss-Seidel: slower, but cannot wander
+        # bracketed per-port Gauss-Seidel: slower, but it cannot wander
         p1 = p1_old
         p2 = p2_old
         span = 0.05 * psr + 1.0e4

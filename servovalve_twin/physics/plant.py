@@ -13,6 +13,11 @@ ROS run equals a ROS-free run to the last bit.
 
 from numba import njit
 
+# The loops below take the valve model's compiled function as an argument, so numba compiles one
+# specialisation per model. They are deliberately not cached on disk: numba's cache of functions
+# with dispatcher arguments goes stale when a valve module changes ("underlying object has
+# vanished"). Compiling costs about 1 s per model and process (see bench/README.md).
+
 from .ecu import ecu_current
 from .jack import jack_step
 from .servovalve import S_DXJ, S_XJ, S_XS, servovalve_step
@@ -23,7 +28,7 @@ OUT_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj', '
 TICK_OUT = ('p12', 'qj', 'p1', 'p2')
 
 
-@njit(cache=True)
+@njit
 def plant_step(valve_fn, s, vs, P, cor, fr, psr, integrate):
     """P12 and QJ at the state ``s`` (time t); then, if ``integrate``, advance ``s`` to t + DT.
 
@@ -42,7 +47,7 @@ def plant_step(valve_fn, s, vs, P, cor, fr, psr, integrate):
     return p12, qj
 
 
-@njit(cache=True)
+@njit
 def run_steps(valve_fn, s, vs, P, com, fr, psr, ecu_every, out_every, out):
     """Run ``len(com) - 1`` steps; the last input sample is the end instant, evaluated without
     integrating so that the last output row holds P12 at the end time.
@@ -79,7 +84,7 @@ def run_steps(valve_fn, s, vs, P, com, fr, psr, ecu_every, out_every, out):
     return -1
 
 
-@njit(cache=True)
+@njit
 def run_tick(valve_fn, s, vs, P, cor, fr, psr, n_sub, out):
     """One control period of the ROS plant: ``n_sub`` steps with Cor, FR, PSR held.
 

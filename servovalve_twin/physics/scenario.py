@@ -203,9 +203,10 @@ def scenario_from_dict(raw: Mapping[str, Any], name: str = 'scenario') -> Scenar
     params = raw.get('params') or {}
     if not isinstance(params, Mapping):
         raise ScenarioError(f'scenario.params must be a mapping NAME: value, got {params!r}')
-    from .params import ParameterError, coerce
+    from .params import ParameterError, coerce, make_params
     try:
         params = {str(k): coerce(str(k), v) for k, v in params.items()}
+        make_params(params)     # range and cross checks now, not at run time
     except ParameterError as exc:
         raise ScenarioError(f'scenario.params: {exc}') from None
     windows = {}

@@ -90,8 +90,9 @@ def write_csv(path: str | Path, signals: Mapping[str, np.ndarray]) -> None:
             w.writerow([repr(float(v)) for v in r])
 
 
-def read_csv(path: str | Path) -> dict[str, np.ndarray]:
-    """The signals of a CSV written by :func:`write_csv` (``simulate --out``)."""
+def read_csv(path: str | Path, require: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The columns of a CSV written by :func:`write_csv` (``simulate --out``); ``require``
+    names columns that must be present."""
     try:
         with open(path, newline='', encoding='utf-8') as fh:
             rows = list(csv.reader(fh))
@@ -99,9 +100,9 @@ def read_csv(path: str | Path) -> dict[str, np.ndarray]:
         raise TwinError(f'cannot read CSV {str(path)!r}: {exc.strerror}') from None
     except UnicodeDecodeError:
         raise TwinError(f'{str(path)!r} is not a text CSV file') from None
-    if not rows or 't' not in rows[0]:
+    if not rows or any(c not in rows[0] for c in require):
         raise TwinError(f'{str(path)!r} is not a run CSV: expected a header row with columns '
-                        f'{",".join(CSV_COLUMNS)}')
+                        f'{",".join(require or CSV_COLUMNS)}')
     header = rows[0]
     try:
         data = np.array([[float(v) for v in r] for r in rows[1:] if r], dtype=float)

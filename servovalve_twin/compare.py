@@ -1,0 +1,134 @@
+"""Metrics and figures of one run against a reference (normally HD).
+
+Runs are aligned on simulated time in whole milliseconds (the 1 ms output rows of MODELS.md
+section 9); errors are ``run - reference``. "RMS error" is the root mean square over the rows
+inside a window [t0, t1) -- the last window of a run is closed at the end time.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from .errors import TwinError
+
+#: signals compared, with their display unit and scale
+COMPARED = {'xj': ('XJ', 'mm', 1e3), 'dxj': ('DXJ', 'mm/s', 1e3), 'p12': ('P12', 'MPa', 1e-6),
+            'xs': ('XS', 'um', 1e6), 'cor': ('Cor', 'mA', 1e3)}
+
+
+def align(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray]
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row indices of ``ref`` and ``run`` at their common whole-ms times, and those times [s]."""
+    ms_ref = np.rint(np.asarray(ref['t']) * 1000).astype(np.int64)
+    ms_run = np.rint(np.asarray(run['t']) * 1000).astype(np.int64)
+    common, i_ref, i_run = np.intersect1d(ms_ref, ms_run, return_indices=True)
+    if common.size < 2:
+        raise TwinError('the two runs share fewer than two 1 ms samples: nothing to compare')
+    return i_ref, i_run, common * 1e-3
+
+
+def window_mask(t: np.ndarray, t0: float, t1: float, closed: bool) -> np.ndarray:
+    ms = np.rint(t * 1000).astype(np.int64)
+    a, b = int(round(t0 * 1000)), int(round(t1 * 1000))
+    return (ms >= a) & ((ms <= b) if closed else (ms < b))
+
+
+def error_metrics(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray],
+                  windows: Mapping[str, tuple[float, float]],
+                  signals: Iterable[str] = COMPARED) -> dict[str, dict[str, dict[str, float]]]:
+    """``{window: {signal: {'rms': .., 'max': .., 'n': ..}}}`` in SI units; the window 'all'
+    (the whole common span) is always included."""
+    i_ref, i_run, t = align(ref, run)
+    t_end = float(t[-1])
+    spans = {'all': (float(t[0]), t_end), **dict(windows)}
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for wname, (t0, t1) in spans.items():
+        mask = window_mask(t, t0, t1, closed=abs(t1 - t_end) < 5e-4)
+        row: dict[str, dict[str, float]] = {}
+        for sig in signals:
+            if sig not in ref or sig not in run:
+                continue
+            err = np.asarray(run[sig])[i_run][mask] - np.asarray(ref[sig])[i_ref][mask]
+            if err.size == 0:
+                continue
+            row[sig] = dict(rms=float(np.sqrt(np.mean(err ** 2))),
+                            max=float(np.max(np.abs(err))), n=int(err.size))
+        out[wname] = row
+    return out
+
+
+def exceeded(metrics: Mapping[str, Any], tolerances: Mapping[str, float]) -> list[str]:
+    """Descriptions of every whole-run max error above its tolerance (signal -> SI value)."""
+    bad = []
+    for sig, tol in tolerances.items():
+        m = metrics['all'].get(sig)
+        if m is not None and m['max'] > tol:
+            bad.append(f'{sig}: max error {m["max"]:.6g} > tolerance {tol:.6g}')
+    return bad
+
+
+def format_table(metrics: Mapping[str, Mapping[str, Mapping[str, float]]],
+                 signals: Sequence[str] = tuple(COMPARED)) -> str:
+    """A plain-text table: one line per window, RMS/max per signal in display units."""
+    sigs = [s for s in signals if any(s in row for row in metrics.values())]
+    head = f'{"window":<12}' + ''.join(
+        f'{COMPARED[s][0] + " rms/max [" + COMPARED[s][1] + "]":>30}' for s in sigs)
+    lines = [head, '-' * len(head)]
+    for wname, row in metrics.items():
+        cells = []
+        for s in sigs:
+            m = row.get(s)
+            scale = COMPARED[s][2]
+            cells.append(f'{m["rms"] * scale:14.4g} / {m["max"] * scale:<11.4g}' if m
+                         else f'{"-":>30}')
+        lines.append(f'{wname:<12}' + ''.join(f'{c:>30}' for c in cells))
+    return '\n'.join(lines)
+
+
+def write_json(path: str | Path, payload: Any) -> None:
+    def clean(o):
+        if isinstance(o, float) and not math.isfinite(o):
+            return None
+        if isinstance(o, dict):
+            return {k: clean(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [clean(v) for v in o]
+        return o
+    Path(path).write_text(json.dumps(clean(payload), indent=2) + '\n', encoding='utf-8')
+
+
+def plot_overlay(runs: Mapping[str, Mapping[str, np.ndarray]], path: str | Path, *,
+                 title: str = '', reference: str | None = None,
+                 signals: Sequence[str] = ('xj', 'dxj', 'p12', 'xs'),
+                 shade: Sequence[tuple[float, float]] = ()) -> None:
+    """Stacked time plots of several runs, in the manner of the paper's Figs. 19-23: one axis
+    per signal (XJ, DXJ, P12, XS against t); the reference drawn black and dashed."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(signals), 1, figsize=(8.0, 2.1 * len(signals)), sharex=True)
+    axes = np.atleast_1d(axes)
+    for ax, sig in zip(axes, signals):
+        label, unit, scale = COMPARED.get(sig, (sig.upper(), 'SI', 1.0))
+        for name, data in runs.items():
+            if sig not in data:
+                continue
+            style = dict(color='k', ls='--', lw=1.2) if name == reference else dict(lw=1.0)
+            ax.plot(data['t'], np.asarray(data[sig]) * scale, label=name, **style)
+        for t0, t1 in shade:
+            ax.axvspan(t0, t1, color='0.9', zorder=0)
+        ax.set_ylabel(f'{label} [{unit}]')
+        ax.grid(True, lw=0.3)
+    axes[0].legend(loc='best', fontsize=8, ncol=min(4, len(runs)))
+    axes[-1].set_xlabel('t [s]')
+    if title:
+        axes[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

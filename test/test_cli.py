@@ -1,0 +1,83 @@
+"""The command-line front door: outputs, exit codes and one-line errors."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from servovalve_twin.cli import main
+from servovalve_twin.physics.simulate import CSV_COLUMNS, read_csv, simulate
+
+
+def test_simulate_writes_the_csv(tmp_path, capsys):
+    out = tmp_path / 'c2.csv'
+    assert main(['simulate', '--valve-model', 'C2', '--out', str(out)]) == 0
+    header = out.read_text().splitlines()[0]
+    assert header == ','.join(CSV_COLUMNS)
+    data = read_csv(out)
+    assert len(data['t']) == 1001 and data['t'][-1] == 1.0
+    ref = simulate('C2', 'paper')
+    np.testing.assert_array_equal(data['xj'], ref['xj'])      # CSV round-trips exactly
+
+
+def test_simulate_hd_adds_port_pressures_and_params_apply(tmp_path):
+    out = tmp_path / 'hd.csv'
+    assert main(['simulate', '--valve-model', 'HD', '--param', 'M=400', '--ecu-period', '0.001',
+                 '--out', str(out)]) == 0
+    data = read_csv(out)
+    assert {'p1', 'p2'} <= set(data)
+    ref = simulate('HD', 'paper', {'M': 400.0}, ecu_period=1e-3)
+    np.testing.assert_array_equal(data['xj'], ref['xj'])
+
+
+@pytest.mark.parametrize('args,fragment', [
+    (['simulate', '--valve-model', 'C9', '--out', 'x.csv'], "unknown valve model 'C9'"),
+    (['simulate', '--valve-model', 'C2', '--param', 'M=-1', '--out', 'x.csv'], 'M = -1.0'),
+    (['simulate', '--valve-model', 'C2', '--param', 'Q=1', '--out', 'x.csv'],
+     "unknown parameter 'Q'"),
+    (['simulate', '--valve-model', 'C2', '--scenario', 'nope.yaml', '--out', 'x.csv'],
+     'cannot read scenario file'),
+    (['simulate', '--valve-model', 'C2', '--ecu-period', 'abc', '--out', 'x.csv'],
+     'expected a number'),
+    (['simulate', '--valve-model', 'C2'], 'required: --out'),
+    (['characteristic', '--valve-model', 'HD', '--qj', '1,x', '--out', 'x.csv'],
+     'comma-separated'),
+])
+def test_bad_input_exit_2_with_one_line(args, fragment, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc_info:
+        raise SystemExit(main(args))
+    assert exc_info.value.code == 2
+    err = capsys.readouterr().err
+    assert fragment in err and err.count('\n') == 1, err
+    assert not (tmp_path / 'x.csv').exists()
+
+
+def test_characteristic(tmp_path):
+    out, png = tmp_path / 'ch.csv', tmp_path / 'ch.png'
+    assert main(['characteristic', '--valve-model', 'HD', '--qj', '0,8e-5', '--points', '41',
+                 '--out', str(out), '--plot', str(png)]) == 0
+    data = read_csv(out)
+    assert list(data) == ['xs', 'qj', 'p12', 'p1', 'p2'] and len(data['xs']) == 82
+    assert png.stat().st_size > 1000
+    assert main(['characteristic', '--valve-model', 'C2', '--psr', '1.2e7', '--out',
+                 str(out)]) == 0
+    data = read_csv(out)
+    assert list(data) == ['xs', 'qj', 'p12'] and np.max(np.abs(data['p12'])) <= 1.2e7
+
+
+def test_calibrate_prints_the_gains(capsys):
+    assert main(['calibrate']) == 0
+    out = capsys.readouterr().out
+    for name in ('XSS', 'GPN', 'GQN', 'GPQ', 'k'):
+        assert f'{name} ' in out or f'{name}=' in out or out.count(name)
+
+
+def test_console_script_exit_code():
+    # the installed entry point behaves like main(): a subprocess sees exit code 2
+    r = subprocess.run([sys.executable, '-m', 'servovalve_twin.cli', 'simulate',
+                        '--valve-model', 'X', '--out', '/dev/null'], capture_output=True,
+                       text=True)
+    assert r.returncode == 2 and r.stderr.startswith('servovalve-twin simulate: error:')
+    assert 'Traceback' not in r.stderr

@@ -1,0 +1,82 @@
+"""The HD reference against theory: Merritt's critical-centre valve, the null pressure gain,
+calibration, over-pressure, cavitation, the compressible variant."""
+
+import math
+
+import numpy as np
+import pytest
+
+from servovalve_twin.physics.hd import calibrate, hd_ports
+from servovalve_twin.physics.params import DEFAULTS
+from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.physics.valves import VALVE_MODELS
+
+
+@pytest.mark.parametrize('c', [1e-6, 1e-7, 1e-8])
+def test_approaches_merritt_critical_centre_as_clearance_vanishes(c):
+    p = DEFAULTS.replace(CLk=0.0, c=c)
+    psr = 20e6
+    worst = 0.0
+    for xs in (2e-5, 6e-5, 1.5e-4):
+        for frac in (0.0, 0.3, 0.6, 0.9):
+            qj = frac * p.Cd * p.w * xs * math.sqrt(psr / p.rho)
+            p12 = hd_ports(xs, qj, psr, p)[0]
+            merritt = psr - p.rho * qj ** 2 / (p.Cd * p.w * xs) ** 2
+            worst = max(worst, abs(p12 - merritt) / psr)
+    print(f'c = {c:g} m: worst |P12 - Merritt|/PSR = {worst:.2e}')
+    assert worst < 3 * c / 2e-5      # the clearance adds (c/x)^2-order corrections
+
+
+def test_null_pressure_gain_matches_the_laminar_formula():
+    p = DEFAULTS.replace(CLk=0.0)
+    psr = 20e6
+    h = 1e-10
+    gp0 = (hd_ports(h, 0.0, psr, p)[0] - hd_ports(-h, 0.0, psr, p)[0]) / (2 * h)
+    expected = 12 * p.mu * p.Cd * math.sqrt(psr / p.rho) / p.c ** 2
+    print(f'HD null pressure gain {gp0:.4e} Pa/m; 12*mu*Cd*sqrt(PSR/rho)/c^2 = {expected:.4e}')
+    assert gp0 == pytest.approx(expected, rel=0.01)
+    assert expected == pytest.approx(2.73e11, rel=0.01)
+
+
+def test_calibration_reproduces_the_defaults_file():
+    cal = calibrate(DEFAULTS)
+    print(cal)
+    assert cal['XSS'] == pytest.approx(DEFAULTS.XSS, rel=1e-9)
+    assert cal['GPQ'] == pytest.approx(DEFAULTS.GPQ, rel=1e-9)
+    assert cal['XSS'] == pytest.approx(1.74e-5, rel=0.01)
+    assert cal['GPN'] == pytest.approx(1.15e12, rel=0.01)
+    assert cal['GQN'] == pytest.approx(1.112, rel=0.01)
+    assert cal['k'] == pytest.approx(0.207, rel=0.01)
+
+
+def test_calibration_follows_geometry_only_on_purpose():
+    wider = DEFAULTS.replace(c=1.0e-5)
+    assert calibrate(wider)['XSS'] > DEFAULTS.XSS * 1.2      # more clearance: softer null
+    assert wider.XSS == DEFAULTS.XSS                          # but no silent recalibration
+
+
+def test_over_pressure_when_the_load_drives_the_flow():
+    # spool open towards +XJ but the jack pushed the other way (QJ < 0): port 1 is pumped
+    p12, p1, p2, _ = hd_ports(3e-5, -8e-5, 20e6, DEFAULTS)
+    print(f'P1 = {p1:.4e} Pa, PS = {20e6 + DEFAULTS.PR:.4e} Pa, P12 = {p12:.4e} Pa')
+    assert p1 > 20e6 + DEFAULTS.PR and p12 > 20e6
+
+
+def test_cavitation_is_clamped_and_flagged():
+    p12, state, info = VALVE_MODELS['HD'](-1.5e-4, 1.2e-4, 20e6, DEFAULTS)
+    assert info['cavitation'] & 1 and info['p1'] == DEFAULTS.Pcav
+
+
+def test_asymmetric_laps_shift_the_null():
+    p = DEFAULTS.replace(CLk=0.0, L_S1=2e-6, L_2R=2e-6, L_S2=-2e-6, L_1R=-2e-6)
+    assert hd_ports(0.0, 0.0, 20e6, p)[0] < -1e6       # underlapped S2/1R edges drive P12 < 0
+
+
+def test_compressible_variant_tracks_the_incompressible_one():
+    inc = simulate('HD', 'paper')
+    com = simulate('HD', 'paper', {'compressible': True})
+    d = np.abs(com['xj'] - inc['xj'])
+    print(f'compressible vs incompressible HD: max |dXJ| = {d.max() * 1e3:.3f} mm, '
+          f'peak P12 {com["p12"].max() / 1e6:.2f} vs {inc["p12"].max() / 1e6:.2f} MPa')
+    assert d.max() < 2e-3
+    assert not np.array_equal(com['p12'], inc['p12'])

@@ -1,0 +1,84 @@
+"""Parameters: defaults, bounds, coercion of YAML 1.1 strings, config/eha.yaml."""
+
+import math
+
+import pytest
+import yaml
+
+from servovalve_twin.errors import ParameterError
+from servovalve_twin.physics.params import (DEFAULTS, PARAM_NAMES, EhaParams, coerce,
+                                            make_params, parse_assignments, param_table)
+from conftest import ROOT
+
+
+def test_config_file_equals_dataclass_defaults():
+    raw = yaml.safe_load((ROOT / 'config' / 'eha.yaml').read_text())['/**']['ros__parameters']
+    for name, value in raw.items():
+        assert name in PARAM_NAMES, name
+        assert DEFAULTS.value(name) == value, name
+        # ROS rejects an integer literal for a double parameter: every float must be a float
+        if PARAM_TABLE[name]['kind'] == 'float':
+            assert isinstance(value, float), f'{name} is written as {type(value).__name__}'
+    missing = {r['name'] for r in param_table() if not r['derived']} - set(raw)
+    assert not missing
+
+
+PARAM_TABLE = {r['name']: r for r in param_table()}
+
+
+def test_derived_values():
+    assert DEFAULTS.gm == pytest.approx(1000.0 * 1.5e-4 / 0.01)     # 15 N/A
+    assert DEFAULTS.v0 == pytest.approx(7.05e-4 * 0.1 + 2e-5)
+    assert DEFAULTS.k == pytest.approx(0.2068, rel=1e-3)
+    assert DEFAULTS.c4_alpha == pytest.approx(1 / (1 + DEFAULTS.k))
+    assert DEFAULTS.replace(GM=7.5).gm == 7.5        # a given value overrides the derivation
+    assert DEFAULTS.dt_ns == 10_000
+
+
+@pytest.mark.parametrize('name,value,fragment', [
+    ('M', -1.0, 'M = -1.0 kg is out of range'),
+    ('M', math.nan, 'must be finite'),
+    ('DT', 0.0, 'out of range'),
+    ('CLk', math.inf, 'must be finite'),
+    ('c', 0.0, 'allowed (0'),
+    ('FDJ', 400.0, 'must not exceed the static friction'),
+    ('DT', 1.00000001e-5, 'whole number of nanoseconds'),
+    ('C4_alpha', 1.9, 'below 2/(1+k)'),
+    ('C4_max_iter', 2.5, 'must be an integer'),
+    ('compressible', 'maybe', 'true or false'),
+    ('Mass', 1.0, "unknown parameter 'Mass'"),
+])
+def test_bad_values_rejected_with_name(name, value, fragment):
+    with pytest.raises(ParameterError, match=None) as err:
+        make_params({name: value})
+    print(err.value)
+    assert fragment in str(err.value)
+
+
+def test_yaml11_strings_become_numbers():
+    # PyYAML reads 20.0e6 and 2e-13 as strings: they must arrive as numbers or be rejected
+    raw = yaml.safe_load('a: 20.0e6\nb: 2e-13\n')
+    assert isinstance(raw['a'], str)
+    p = make_params({'PSRN': raw['a'], 'CLk': raw['b']})
+    assert p.PSRN == 20.0e6 and p.CLk == 2e-13
+    with pytest.raises(ParameterError, match='must be a number'):
+        coerce('M', 'heavy')
+
+
+def test_cli_assignments():
+    assert parse_assignments(['M=400', 'compressible=true']) == {'M': 400.0,
+                                                                  'compressible': True}
+    with pytest.raises(ParameterError, match='NAME=VALUE'):
+        parse_assignments(['M'])
+
+
+def test_frozen():
+    with pytest.raises(Exception):
+        DEFAULTS.M = 1.0  # type: ignore[misc]
+    assert isinstance(DEFAULTS, EhaParams)
+
+
+def test_every_documented_name_exists():
+    for name in ('AJ', 'M', 'CJ', 'FDJ', 'FSJ', 'CLk', 'XSM', 'XSS', 'GPQ', 'GAP', 'CorM', 'w',
+                 'c', 'r', 'L_S1', 'L_1R', 'L_S2', 'L_2R', 'Cd', 'rho', 'mu', 'PR', 'DT'):
+        assert name in PARAM_NAMES

@@ -1,0 +1,103 @@
+"""EHA plant blocks: servovalve steady state and stops, stick/slip, end stops, DT convergence,
+sampled ECU, determinism."""
+
+import numpy as np
+import pytest
+
+from servovalve_twin.physics.params import DEFAULTS
+from servovalve_twin.physics.simulate import EhaPlant, simulate
+from conftest import cached_run
+
+
+def hold(com=0.0, fr=0.0, psr=20e6, duration=0.3):
+    return {'duration': duration, 'com': [[0.0, com]], 'fr': [[0.0, fr]], 'psr': [[0.0, psr]]}
+
+
+def test_servovalve_steady_state_and_end_of_travel():
+    plant = EhaPlant('C2', DEFAULTS.replace(FSJ=1e7, FDJ=1e7))      # jack locked by friction
+    for _ in range(50):
+        plant.tick(0.004, 0.0, 20e6, 100)
+    # XS = GM*Cor/KFB at steady state
+    assert plant.xs == pytest.approx(DEFAULTS.gm * 0.004 / DEFAULTS.KFB, rel=1e-6)
+    for _ in range(50):
+        plant.tick(0.05, 0.0, 20e6, 100)                  # beyond full current: spool stop
+    assert plant.xs == DEFAULTS.XSM
+
+
+def test_stick_then_slip_at_the_static_friction():
+    # a load below FSJ with the valve centred: the jack must not creep
+    r = simulate('C2', hold(fr=250.0), {'GAP': 1e-9})
+    assert np.all(r['xj'] == 0.0) and np.all(r['dxj'] == 0.0)
+    # above FSJ it breaks away, against the load's direction sign (FR > 0 pushes towards -XJ)
+    r = simulate('C2', hold(fr=350.0), {'GAP': 1e-9})
+    assert r['xj'][-1] < -1e-4
+    print(f'FR = 350 N > FSJ: XJ(0.3 s) = {r["xj"][-1] * 1e3:.3f} mm')
+
+
+def test_moving_jack_stops_instead_of_chattering():
+    # coasting against dynamic friction only: the velocity reaches exactly 0 and stays there
+    plant = EhaPlant('linear', DEFAULTS.replace(GAP=1e-9, CJ=0.0, GPQ=1e-3))
+    plant.s[4] = 0.01                                       # DXJ = 10 mm/s, P12 ~ 0
+    for _ in range(100):
+        plant.tick(0.0, 0.0, 20e6, 100)
+    assert plant.dxj == 0.0
+    # m*v/FDJ = 500*0.01/200 = 25 ms of coasting: x = v^2*m/(2*FDJ) = 0.125 mm
+    assert plant.xj == pytest.approx(0.01 ** 2 * 500 / (2 * 200), rel=0.01)
+
+
+def test_end_stops():
+    r = simulate('C2', hold(com=0.5, duration=1.0))
+    assert r['xj'].max() == DEFAULTS.XJM
+    at_stop = r['xj'] == DEFAULTS.XJM
+    assert np.all(r['dxj'][at_stop] == 0.0)
+
+
+def test_halving_dt_barely_changes_the_run():
+    for model in ('C2', 'HD'):
+        a = cached_run(model)
+        b = simulate(model, 'paper', {'DT': 5e-6})
+        d = np.max(np.abs(a['xj'] - b['xj']))
+        print(f'{model}: max |XJ(DT) - XJ(DT/2)| = {d * 1e3:.4f} mm')
+        assert d < 1e-4
+
+
+def test_sampled_ecu_is_close_to_continuous():
+    a = cached_run('C2')
+    b = simulate('C2', 'paper', ecu_period=1e-3)
+    d = np.max(np.abs(a['xj'] - b['xj']))
+    print(f'ECU sampled at 1 ms vs continuous: max |dXJ| = {d * 1e3:.3f} mm')
+    assert 0 < d < 1e-3
+    # Cor is held over the period: constant within each 1 ms of a 0.1 ms-sampled output? rows
+    # are 1 ms apart, so check the hold through the tick API instead
+    with pytest.raises(Exception, match='multiple of DT'):
+        simulate('C2', 'paper', ecu_period=1.5e-5)
+
+
+def test_runs_are_deterministic():
+    a = simulate('HD', 'paper')
+    b = simulate('HD', 'paper')
+    for c in a.columns:
+        np.testing.assert_array_equal(a[c], b[c])
+
+
+def test_eha_plant_tick_equals_simulate_with_sampled_ecu():
+    ref = simulate('C4', 'paper', ecu_period=1e-3)
+    plant = EhaPlant('C4', DEFAULTS)
+    com, fr, psr = ref['com'], ref['fr'], ref['psr']
+    xj = [plant.xj]
+    for i in range(len(com) - 1):
+        cor = plant.control(com[i], plant.xj)
+        plant.tick(cor, fr[i], psr[i], 100)
+        xj.append(plant.xj)
+    assert np.max(np.abs(np.array(xj) - ref['xj'])) == 0.0
+
+
+def test_model_switch_keeps_mechanical_state():
+    plant = EhaPlant('C2', DEFAULTS)
+    for _ in range(30):
+        plant.tick(plant.control(0.02, plant.xj), 0.0, 20e6, 100)
+    before = plant.s.copy()
+    plant.set_valve_model('HD')
+    np.testing.assert_array_equal(plant.s, before)
+    out = plant.tick(plant.control(0.02, plant.xj), 0.0, 20e6, 100)
+    assert np.isfinite(out[2]) and plant.xj > before[3]

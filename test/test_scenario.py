@@ -1,0 +1,76 @@
+"""Scenario loading: the paper scenario, defaults, every feature, and rejected input."""
+
+import numpy as np
+import pytest
+
+from servovalve_twin.errors import ScenarioError
+from servovalve_twin.physics.scenario import builtin_scenarios, load_scenario
+from servovalve_twin.physics.simulate import simulate
+
+
+def test_paper_scenario_is_models_md_section_6():
+    s = load_scenario('paper')
+    t = np.array([0, 0.1999, 0.2, 0.3, 0.35, 0.45, 0.75, 1.0])
+    t_ns = np.rint(t * 1e9).astype(np.int64)
+    com, fr, psr = s.inputs(t_ns)
+    assert list(com) == [0.02, 0.02, 0.02, 0.03, 0.03, 0.03, 0.02, 0.02]
+    assert list(fr) == [0, 0, 10400, 10400, 10400, 10400, 10400, 10400]
+    assert list(psr) == [20e6, 20e6, 20e6, 20e6, 12e6, 20e6, 20e6, 20e6]
+    assert s.duration == 1.0
+    assert s.windows['overstall'] == (0.35, 0.50)
+    assert s.phases()[0] == (0.0, 0.2) and len(s.phases()) == 6
+
+
+def test_breakpoint_applies_from_integer_nanoseconds():
+    # 0.35/1e-5 is not an integer in floating point: the step starting at 35000*DT must see it
+    s = load_scenario('paper')
+    t_ns = np.arange(34999, 35002, dtype=np.int64) * 10_000
+    assert list(s.psr.values(t_ns)) == [20e6, 12e6, 12e6]
+
+
+@pytest.mark.parametrize('name', sorted(builtin_scenarios()))
+def test_builtin_scenarios_load_and_run(name):
+    r = simulate('C2', name)
+    assert np.all(np.isfinite(r['xj']))
+    print(name, 'final XJ', r['xj'][-1])
+
+
+def test_schema_of_the_issue_loads(tmp_path):
+    f = tmp_path / 's.yaml'
+    f.write_text('duration: 1.0\ncom: [[0.0, 0.02], [0.30, 0.03], [0.75, 0.02]]\n'
+                 'fr:  [[0.0, 0.0], [0.20, 10400.0]]\n'
+                 'psr: [[0.0, 20.0e6], [0.35, 12.0e6], [0.45, 20.0e6]]\n')
+    s = load_scenario(f)
+    assert s.psr.points[1] == (0.35, 12.0e6)     # 12.0e6 (a YAML 1.1 string) became a number
+
+
+def test_ramp_and_sine():
+    s = load_scenario({'duration': 1.0, 'com': {'ramp': [[0, 0], [0.5, 1.0]]},
+                       'psr': {'sine': {'offset': 1.0, 'amplitude': 2.0, 'frequency': 1.0,
+                                        'start': 0.25}}})
+    t_ns = np.rint(np.array([0.0, 0.25, 0.5, 0.75]) * 1e9).astype(np.int64)
+    assert np.allclose(s.com.values(t_ns), [0, 0.5, 1.0, 1.0])
+    assert np.allclose(s.psr.values(t_ns), [1.0, 1.0, 3.0, 1.0], atol=1e-12)
+
+
+@pytest.mark.parametrize('raw,fragment', [
+    ({'duratoin': 1.0}, "unknown scenario key 'duratoin'"),
+    ({'com': [[0.1, 0.0]]}, 'first breakpoint must be at t = 0'),
+    ({'com': [[0.0, 0.0], [0.5, 'x']]}, 'expected a number'),
+    ({'com': [[0.0, 0.0], [0.5, 1.0], [0.4, 0.0]]}, 'must increase strictly'),
+    ({'duration': 0.5, 'com': [[0.0, 0.0], [0.6, 1.0]]}, 'after the duration'),
+    ({'duration': 0.0005}, 'whole number of milliseconds'),
+    ({'fr': {'sawtooth': []}}, 'expected a list'),
+    ({'psr': {'sine': {'offset': 1.0, 'freq': 2.0}}}, "unknown key 'freq'"),
+    ({'params': {'M': -5.0}}, 'scenario.params: parameter M'),
+    ({'com': [[0.0, float('nan')]]}, 'finite'),
+])
+def test_bad_scenarios_rejected(raw, fragment):
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(raw)
+    assert fragment in str(err.value)
+
+
+def test_unknown_scenario_name():
+    with pytest.raises(ScenarioError, match="unknown scenario 'papr'"):
+        load_scenario('papr')
