@@ -48,14 +48,16 @@ def plant_step(valve_fn, s, vs, P, cor, fr, psr, integrate):
 
 
 @njit
-def run_steps(valve_fn, s, vs, P, com, fr, psr, ecu_every, out_every, out):
+def run_steps(valve_fn, s, vs, P_arr, com, fr, psr, ecu_every, out_every, out):
     """Run ``len(com) - 1`` steps; the last input sample is the end instant, evaluated without
     integrating so that the last output row holds P12 at the end time.
 
     ``ecu_every`` = 0 evaluates the ECU every step (continuous); n > 0 samples it every n steps
     and holds Cor in between. Every ``out_every`` steps a row of :data:`OUT_COLUMNS` is written.
-    Returns -1, or the index of the step at which the valve model failed.
+    ``P_arr`` is :meth:`~.params.EhaParams.kernel_array`. Returns -1, or the index of the step at
+    which the valve model failed.
     """
+    P = P_arr[0]
     n = com.shape[0] - 1
     row = 0
     cor = 0.0
@@ -85,13 +87,14 @@ def run_steps(valve_fn, s, vs, P, com, fr, psr, ecu_every, out_every, out):
 
 
 @njit
-def run_tick(valve_fn, s, vs, P, cor, fr, psr, n_sub, out):
+def run_tick(valve_fn, s, vs, P_arr, cor, fr, psr, n_sub, out):
     """One control period of the ROS plant: ``n_sub`` steps with Cor, FR, PSR held.
 
     ``out`` receives :data:`TICK_OUT` at the start of the tick (the valve's response to the
     inputs in force from that instant). ``n_sub`` = 0 evaluates without integrating (the end
     instant of a run). Returns -1, or the sub-step at which the valve model failed.
     """
+    P = P_arr[0]
     n = n_sub if n_sub > 0 else 1
     for j in range(n):
         p12, qj = plant_step(valve_fn, s, vs, P, cor, fr, psr, n_sub > 0)

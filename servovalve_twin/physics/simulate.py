@@ -140,7 +140,8 @@ def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
     s = np.zeros(S_SIZE)
     vs = model.initial_state(p)
     wall = time.perf_counter()
-    failed = run_steps(model.fn, s, vs, p.kernel(), com, fr, psr, ecu_every, out_every, out)
+    failed = run_steps(model.fn, s, vs, p.kernel_array(), com, fr, psr, ecu_every, out_every,
+                       out)
     wall = time.perf_counter() - wall
     if failed >= 0:
         raise ModelError(f'valve model {model.name} failed to converge at t = '
@@ -171,6 +172,7 @@ class EhaPlant:
     def __init__(self, valve_model: str = 'C2', params: EhaParams | None = None):
         self.params = params or DEFAULTS
         self._kernel = self.params.kernel()
+        self._kernel_arr = self.params.kernel_array()
         self.model = get_valve_model(valve_model)
         self.s = np.zeros(S_SIZE)
         self.vs = self.model.initial_state(self.params)
@@ -205,10 +207,13 @@ class EhaPlant:
         """Continue with new parameters (a fault, a retune); the state is kept."""
         self.params = params
         self._kernel = params.kernel()
+        self._kernel_arr = params.kernel_array()
 
     def control(self, com: float, xj: float) -> float:
-        """The ECU law (the same compiled function :func:`simulate` uses)."""
-        return float(ecu_current(float(com), float(xj), self._kernel))
+        """The ECU law: the source of the compiled function :func:`simulate` uses, evaluated
+        by the interpreter (a compiled call costs more to enter than this law costs to compute;
+        IEEE arithmetic makes both bit-identical, which the tests check)."""
+        return float(ecu_current.py_func(float(com), float(xj), self._kernel))
 
     def tick(self, cor: float, fr: float, psr: float, n_sub: int) -> np.ndarray:
         """Advance ``n_sub`` steps with Cor, FR, PSR held; returns P12, QJ, P1, P2 at the tick's
@@ -216,13 +221,19 @@ class EhaPlant:
         for label, v in (('Cor', cor), ('FR', fr), ('PSR', psr)):
             if not math.isfinite(v):
                 raise ModelError(f'{label} must be finite, got {v!r}')
-        failed = run_tick(self.model.fn, self.s, self.vs, self._kernel, float(cor), float(fr),
+        failed = run_tick(self.model.fn, self.s, self.vs, self._kernel_arr, float(cor), float(fr),
                           float(psr), int(n_sub), self.last)
         if failed >= 0:
             raise ModelError(f'valve model {self.model.name} failed to converge')
         if not self.model.has_ports:
             self.last[2:] = np.nan
         return self.last
+
+    def compile(self) -> None:
+        """Compile the tick loop for the current model now (numba compiles on first call),
+        on scratch copies of the state: the first real tick then costs what every tick costs."""
+        run_tick(self.model.fn, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
+                 self.params.PSRN, 1, np.zeros(len(TICK_OUT)))
 
     def diagnostics(self) -> dict[str, Any]:
         return _diagnostics(self.model, self.vs)

@@ -1,0 +1,1 @@
+"""rosbag2-layout MCAP bags: writing, reading, reindexing, replay."""

@@ -1,0 +1,226 @@
+"""A rosbag2 (Jazzy) MCAP bag writer on the ``mcap`` library, in exactly rosbag2's layout
+(``BAGS.md``): ``<dir>/<dir>_0.mcap`` with profile ``ros2``, one ``ros2msg`` schema per type
+carrying the full ``.msg`` text and its dependencies, ``cdr`` channels with
+``offered_qos_profiles`` and ``topic_type_hash`` metadata, the embedded ``rosbag2`` metadata
+record, and ``metadata.yaml`` version 9 -- so ``ros2 bag``, Foxglove, PlotJuggler and ``rosbags``
+open it.
+
+Chunks are uncompressed and CRC-free as rosbag2 writes them. :meth:`BagWriter.flush` closes the
+current chunk and flushes the file: the twin calls it every 50 ms of simulated time, so a killed
+run loses at most that much (``servovalve-twin reindex`` makes the rest readable).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from .. import __version__
+
+from ..errors import BagError
+from .cdr import CDR_HEADER
+from .mcap_file import McapFileWriter
+
+ROS_DISTRO = 'jazzy'
+_DEP_RE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
+_PRIMITIVES = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
+               'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'}
+_INFINITE = {'sec': 9223372036, 'nsec': 854775807}
+
+
+def share_dir() -> Path:
+    """Where the ROS wheels keep ``share/<pkg>/msg/*.msg`` (the venv's prefix)."""
+    for base in (Path(sys.prefix), *(Path(p) for p in os.environ.get('AMENT_PREFIX_PATH', '')
+                                     .split(os.pathsep) if p)):
+        if (base / 'share' / 'std_msgs' / 'msg').is_dir():
+            return base / 'share'
+    raise BagError('cannot find the ROS message definitions (share/std_msgs/msg); is '
+                   'ros-jazzy-common-interfaces installed?')
+
+
+def _msg_text(type_name: str) -> str:
+    pkg, _, name = type_name.partition('/msg/')
+    path = share_dir() / pkg / 'msg' / f'{name}.msg'
+    try:
+        return path.read_text(encoding='utf-8')
+    except OSError:
+        raise BagError(f'no message definition for {type_name} at {path}') from None
+
+
+def message_definition(type_name: str) -> str:
+    """The "complete message definition" rosbag2 stores: the root ``.msg`` verbatim, then each
+    dependency not yet emitted as ``=`` x 80 / ``MSG: <type as written>`` / its text, sorted and
+    depth-first (rosbag2's LocalMessageDefinitionSource)."""
+    emitted: set[str] = set()
+    parts = [_msg_text(type_name)]
+
+    def deps(pkg: str, text: str) -> list[tuple[str, str]]:
+        """(type as written, full type name) of every non-primitive field, sorted."""
+        found = set()
+        for m in _DEP_RE.finditer(text):
+            t = m.group(1)
+            if t in _PRIMITIVES:
+                continue
+            found.add(t if '/' in t else f'{pkg}/{t}')
+        return [(w, w.replace('/', '/msg/', 1)) for w in sorted(found)]
+
+    def walk(full: str, text: str) -> None:
+        pkg = full.split('/', 1)[0]
+        for written, dep_full in deps(pkg, text):
+            if written in emitted:
+                continue
+            emitted.add(written)
+            dep_text = _msg_text(dep_full)
+            parts.append('\n' + '=' * 80 + '\n' + f'MSG: {written}\n' + dep_text)
+            walk(dep_full, dep_text)
+
+    walk(type_name, parts[0])
+    return ''.join(parts)
+
+
+def type_hash(type_name: str) -> str:
+    """RIHS01 hash shipped with the wheels (``share/<pkg>/msg/<T>.json``)."""
+    pkg, _, name = type_name.partition('/msg/')
+    path = share_dir() / pkg / 'msg' / f'{name}.json'
+    try:
+        for entry in json.loads(path.read_text(encoding='utf-8'))['type_hashes']:
+            if entry['type_name'] == type_name:
+                return entry['hash_string']
+    except (OSError, KeyError, ValueError):
+        pass
+    return ''
+
+
+def qos_profiles(reliability: str = 'reliable', durability: str = 'volatile') -> list[dict]:
+    """Offered QoS as ``ros2 bag record`` stores it in version 9 (history unknown, depth 0)."""
+    return [dict(history='unknown', depth=0, reliability=reliability, durability=durability,
+                 deadline=dict(_INFINITE), lifespan=dict(_INFINITE), liveliness='automatic',
+                 liveliness_lease_duration=dict(_INFINITE),
+                 avoid_ros_namespace_conventions=False)]
+
+
+def _yaml(data: Any) -> str:
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=False)
+
+
+class BagWriter:
+    """Writes one bag directory; topics are added before their first message.
+
+    :param directory: the bag directory, created; its name names the ``.mcap`` file
+    :param flush_every_ns: close the chunk and flush whenever the log time advanced this much
+    """
+
+    def __init__(self, directory: str | Path, *, flush_every_ns: int | None = 50_000_000,
+                 overwrite: bool = False):
+        self.dir = Path(directory)
+        if self.dir.exists() and any(self.dir.iterdir()):
+            if not overwrite:
+                raise BagError(f'bag directory {str(self.dir)!r} exists and is not empty')
+            for f in self.dir.iterdir():
+                if f.suffix in ('.mcap', '.yaml'):
+                    f.unlink()
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.file_name = f'{self.dir.name}_0.mcap'
+        self._fh = open(self.dir / self.file_name, 'wb')
+        self._mcap = McapFileWriter(self._fh, profile='ros2',
+                                    library=f'servovalve_twin {__version__}')
+        self._schemas: dict[str, int] = {}
+        self.topics: dict[str, dict[str, Any]] = {}
+        self.channels: dict[str, int] = {}
+        self.counts: dict[str, int] = {}
+        self.first_ns: int | None = None
+        self.last_ns = 0
+        self._flushed_ns = 0
+        self._flush_every = flush_every_ns
+        self.closed = False
+
+    def add_topic(self, topic: str, type_name: str, qos: list[dict] | None = None) -> None:
+        if topic in self.channels:
+            return
+        if type_name not in self._schemas:
+            self._schemas[type_name] = self._mcap.register_schema(
+                name=type_name, encoding='ros2msg',
+                data=message_definition(type_name).encode('utf-8'))
+        qos = qos or qos_profiles()
+        thash = type_hash(type_name)
+        self.channels[topic] = self._mcap.register_channel(
+            topic=topic, message_encoding='cdr', schema_id=self._schemas[type_name],
+            metadata={'offered_qos_profiles': _yaml(qos), 'topic_type_hash': thash})
+        self.topics[topic] = dict(name=topic, type=type_name, serialization_format='cdr',
+                                  offered_qos_profiles=qos, type_description_hash=thash)
+        self.counts[topic] = 0
+
+    def write(self, topic: str, data: bytes, log_ns: int, publish_ns: int | None = None) -> None:
+        """One serialized CDR message (with its 4-byte encapsulation header)."""
+        self._mcap.add_message(self.channels[topic], log_ns, data,
+                               log_ns if publish_ns is None else publish_ns)
+        self.counts[topic] += 1
+        if self.first_ns is None:
+            self.first_ns = log_ns
+        if log_ns > self.last_ns:
+            self.last_ns = log_ns
+        if self._flush_every is not None and self.last_ns - self._flushed_ns >= self._flush_every:
+            self.flush()
+
+    def write_float64(self, topic: str, log_ns: np.ndarray, values: np.ndarray) -> None:
+        """Many std_msgs/Float64 messages of one topic at once (log = publish time): the CDR
+        bytes are the encapsulation header 00 01 00 00 and the little-endian double."""
+        n = len(values)
+        if n == 0:
+            return
+        rows = np.empty((n, 12), dtype=np.uint8)
+        rows[:, :4] = np.frombuffer(CDR_HEADER, dtype=np.uint8)
+        rows[:, 4:] = np.asarray(values, dtype='<f8').view(np.uint8).reshape(n, 8)
+        log_ns = np.asarray(log_ns, dtype=np.int64)
+        self._mcap.add_batch(self.channels[topic], log_ns, rows)
+        self.counts[topic] += n
+        first, last = int(log_ns.min()), int(log_ns.max())
+        self.first_ns = first if self.first_ns is None else min(self.first_ns, first)
+        self.last_ns = max(self.last_ns, last)
+
+    def flush(self) -> None:
+        self._mcap.flush()
+        self._flushed_ns = self.last_ns
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        self._mcap.add_metadata(name, {str(k): str(v) for k, v in data.items()})
+        self._mcap.flush()
+
+    def bag_metadata(self) -> dict[str, Any]:
+        """rosbag2's BagMetadata (version 9) of what was written."""
+        start = self.first_ns or 0
+        duration = self.last_ns - start if self.first_ns is not None else 0
+        total = sum(self.counts.values())
+        return dict(
+            version=9, storage_identifier='mcap', duration=dict(nanoseconds=duration),
+            starting_time=dict(nanoseconds_since_epoch=start), message_count=total,
+            topics_with_message_count=[dict(topic_metadata=self.topics[t],
+                                            message_count=self.counts[t]) for t in self.topics],
+            compression_format='', compression_mode='', relative_file_paths=[self.file_name],
+            files=[dict(path=self.file_name, starting_time=dict(nanoseconds_since_epoch=start),
+                        duration=dict(nanoseconds=duration), message_count=total)],
+            custom_data=None, ros_distro=os.environ.get('ROS_DISTRO', ROS_DISTRO))
+
+    def close(self) -> None:
+        """Write the embedded ``rosbag2`` record, the MCAP summary and ``metadata.yaml``."""
+        if self.closed:
+            return
+        self.closed = True
+        meta = self.bag_metadata()
+        self._mcap.add_metadata('rosbag2', {'serialized_metadata': _yaml(meta)})
+        self._mcap.finish()
+        self._fh.close()
+        write_metadata_yaml(self.dir, meta)
+
+
+def write_metadata_yaml(directory: Path, meta: Mapping[str, Any]) -> None:
+    tmp = directory / 'metadata.yaml.tmp'
+    tmp.write_text(_yaml({'rosbag2_bagfile_information': dict(meta)}), encoding='utf-8')
+    os.replace(tmp, directory / 'metadata.yaml')

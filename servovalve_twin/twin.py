@@ -1,0 +1,405 @@
+"""``twin``: the four nodes, a clock driver and a bag recorder in one ``EventsExecutor`` on
+simulated time, in deterministic lockstep.
+
+Per control period k (t = k*Tc, an integer count of nanoseconds; ROS-LOCKSTEP.md):
+
+1. ``/clock`` is published with t (every node has ``use_sim_time`` true);
+2. the plant publishes its state at t (XS, XJ, DXJ);
+3. the command generator and the scheduler publish Com, FR, PSR at t;
+4. the executor spins until the plant reports tick k done: the ECU computes Cor once it holds
+   that tick's Com and XJ; the plant, once it holds Cor, FR and PSR, publishes P12, QJ (P1, P2)
+   and the joint state at t and integrates [t, t + Tc) in DT sub-steps;
+5. only then does the clock advance. The last tick (t = duration) evaluates without
+   integrating, so the run's last 1 ms row is complete.
+
+Each input is consumed in order of arrival and exactly once, so the result does not depend on
+callback order; the physics is the one :func:`~servovalve_twin.physics.simulate.simulate` runs,
+so ``twin`` equals ``simulate`` with the same sampled ECU period. SIGINT and SIGTERM stop the
+loop at a tick boundary (``EventsExecutor`` ignores both) and the bag is finalized.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import struct
+import sys
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
+
+from . import __version__
+from .bag.cdr import ENCODERS
+from .bag.writer import BagWriter
+from .errors import ModelError, TwinError
+from .nodes.clock import clock_msg
+from .nodes.common import QOS, TOPICS
+from .nodes.ecu import ECU_PARAMS, Ecu
+from .nodes.plant import Plant
+from .nodes.sources import CommandGenerator, Scheduler
+from .physics.params import PARAM_NAMES, EhaParams
+from .physics.scenario import Scenario, load_scenario
+from .physics.simulate import (CSV_COLUMNS, OUTPUT_PERIOD_NS, PORT_COLUMNS, effective_params,
+                               steps_per)
+from .physics.valves import get_valve_model
+
+TICK_DEADLINE_S = 5.0
+#: rclpy's EventsExecutor was measured several times cheaper per callback than the
+#: SingleThreadedExecutor here (bench/bench_twin.py); the latter is kept for comparison.
+EXECUTORS = {'events': EventsExecutor, 'single': SingleThreadedExecutor}
+
+
+def _type_name(msg_type: type) -> str:
+    module = msg_type.__module__.split('.')
+    return f'{module[0]}/msg/{msg_type.__name__}'
+
+
+class Recorder:
+    """Takes every message the twin's nodes publish, at the moment they publish it (their
+    ``tap``), and writes it to the bag with the tick's simulated time as log and publish time,
+    as exact CDR wire bytes (:mod:`.bag.cdr`; the tests check them against raw subscriptions).
+    Float64 values are buffered and packed per topic at each flush, every ``flush_ns`` of
+    simulated time, so a killed run loses at most that much. The values are also what ``--out``
+    writes as the CSV of the ROS run's own messages."""
+
+    def __init__(self, writer: BagWriter | None, *, keep_values: bool,
+                 flush_ns: int = 50_000_000):
+        self.writer = writer
+        self.keep_values = keep_values
+        self.now_ns = 0
+        self.flush_ns = flush_ns
+        self._flushed_ns = 0
+        self.types = {f'/{t}': _type_name(spec[0]) for t, spec in TOPICS.items()}
+        self.types['/clock'] = 'rosgraph_msgs/msg/Clock'
+        self.encoders = {topic: ENCODERS[tn] for topic, tn in self.types.items()}
+        float_topics = [t for t, tn in self.types.items() if tn == 'std_msgs/msg/Float64']
+        # per Float64 topic: times and values not yet written; all of them when keep_values
+        self._pending = {t[1:]: ([], []) for t in float_topics}
+        self._written = {t[1:]: 0 for t in float_topics}
+        self._other = 0
+        if writer is not None:
+            for topic, type_name in self.types.items():
+                writer.add_topic(topic, type_name)
+
+    def record(self, topic: str, msg: Any) -> None:
+        """The nodes' tap: ``topic`` as the node names it (relative: 'xj', or '/clock')."""
+        pending = self._pending.get(topic)
+        if pending is not None:
+            pending[0].append(self.now_ns)
+            pending[1].append(msg.data)
+        elif self.writer is not None:
+            name = topic if topic[0] == '/' else '/' + topic
+            self.writer.write(name, self.encoders[name](msg), self.now_ns)
+        else:
+            self._other += 1
+
+    def tick_done(self) -> None:
+        """Called after each tick: flush every ``flush_ns`` of simulated time."""
+        if self.now_ns - self._flushed_ns >= self.flush_ns:
+            self.flush()
+
+    def flush(self) -> None:
+        self._flushed_ns = self.now_ns
+        if self.writer is None:
+            return
+        for topic, (times, values) in self._pending.items():
+            start = self._written[topic]
+            self.writer.write_float64('/' + topic, times[start:], values[start:])
+            if self.keep_values:
+                self._written[topic] = len(times)
+            else:
+                times.clear()
+                values.clear()
+        self.writer.flush()
+
+    def values(self, topic: str) -> tuple[list[int], list[float]]:
+        return self._pending[topic]
+
+    @property
+    def count(self) -> int:
+        """Messages recorded so far."""
+        if self.writer is not None:
+            return sum(self.writer.counts.values()) + sum(
+                len(t) - self._written[k] for k, (t, _) in self._pending.items())
+        return self._other + sum(len(t) for t, _ in self._pending.values())
+
+
+@dataclasses.dataclass
+class TwinResult:
+    valve_model: str
+    scenario: Scenario
+    params: EhaParams
+    control_period: float
+    ticks: int
+    wall_s: float
+    interrupted: bool = False
+    bag: Path | None = None
+    signals: dict[str, np.ndarray] | None = None
+    messages: int = 0
+
+
+class Twin:
+    """The in-process graph. Create, :meth:`run`, :meth:`close` (or use as a context manager).
+
+    :param context: a private rclpy context (tests) or None for a new one
+    :param bag: bag directory to record into, or None
+    :param keep_values: keep the Float64 values to build the 1 ms signal table (``signals``)
+    :param clock_period: ``/clock`` is published every this much simulated time (a multiple of
+        the control period; default 10 ms). The lockstep does not need ``/clock`` -- every
+        message is tied to its tick -- so it is decimated: at 1 ms each ``/clock`` message
+        costs a delivery to every node's time source (bench/README.md)
+    :param executor: 'events' (rclpy's EventsExecutor) or 'single' (SingleThreadedExecutor)
+    """
+
+    def __init__(self, valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
+                 overrides: Mapping[str, Any] | None = None, *, control_period: float = 1e-3,
+                 bag: str | Path | None = None, keep_values: bool = True,
+                 context: Context | None = None, args: Sequence[str] | None = None,
+                 domain_id: int | None = None, overwrite: bool = False,
+                 clock_period: float = 1e-2, executor: str = 'events'):
+        get_valve_model(valve_model)
+        self.scenario = load_scenario(scenario)
+        self.params = effective_params(self.scenario, overrides)
+        self.valve_model = valve_model
+        self.control_period = control_period
+        self.n_sub = steps_per(control_period, self.params, 'the control period')
+        self.period_ns = self.n_sub * self.params.dt_ns
+        if OUTPUT_PERIOD_NS % self.period_ns:
+            raise TwinError(f'the control period {control_period} s must divide the 1 ms output '
+                            'period')
+        if self.scenario.duration_ns % self.period_ns:
+            raise TwinError(f'the duration {self.scenario.duration} s is not a whole number of '
+                            f'control periods of {control_period} s')
+        self.clock_period_ns = int(round(clock_period * 1e9))
+        if self.clock_period_ns <= 0 or self.clock_period_ns % self.period_ns:
+            raise TwinError(f'the /clock period {clock_period} s must be a whole number of '
+                            f'control periods of {control_period} s')
+        self._own_context = context is None
+        self.context = context or Context()
+        if not self.context.ok():
+            rclpy.init(args=list(args) if args is not None else None, context=self.context,
+                       domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        self.writer = (BagWriter(bag, overwrite=overwrite, flush_every_ns=None)
+                       if bag is not None else None)
+        sim = Parameter('use_sim_time', Parameter.Type.BOOL, True)
+        period = Parameter('control_period', Parameter.Type.DOUBLE, float(control_period))
+        scn = Parameter('scenario', Parameter.Type.STRING, 'paper')
+        kw = dict(context=self.context)
+        self.nodes: list[Node] = []
+        try:
+            self.command_generator = CommandGenerator(lockstep=True, **kw,
+                                                      parameter_overrides=[sim, period, scn])
+            self.command_generator.scenario = self.scenario
+            self.scheduler = Scheduler(lockstep=True, **kw, parameter_overrides=[sim, period, scn])
+            self.scheduler.scenario = self.scenario
+            physical = [_ros_param(n, self.params) for n in PARAM_NAMES]
+            self.ecu = Ecu(lockstep=True, **kw, parameter_overrides=[sim] + [
+                p for p in physical if p.name in ECU_PARAMS])
+            self.plant = Plant(lockstep=True, params=self.params, **kw, parameter_overrides=[
+                sim, period, Parameter('valve_model', Parameter.Type.STRING, valve_model)]
+                + physical)
+            self.clock = Node('twin_clock', **kw, parameter_overrides=[sim])
+            self.clock_pub = self.clock.create_publisher(Clock, '/clock', 10)
+            self.recorder = Recorder(self.writer, keep_values=keep_values)
+            self.nodes = [self.command_generator, self.scheduler, self.ecu, self.plant,
+                          self.clock]
+            for n in self.nodes[:4]:
+                n.tap = self.recorder.record
+            if executor not in EXECUTORS:
+                raise TwinError(f'unknown executor {executor!r}; expected one of '
+                                f'{sorted(EXECUTORS)}')
+            self.executor = EXECUTORS[executor](context=self.context)
+            for n in self.nodes:
+                self.executor.add_node(n)
+        except Exception:
+            self.close()
+            raise
+        self.plant.plant.compile()
+        if self.writer is not None:
+            self.writer.add_metadata('servovalve_twin', provenance(
+                valve_model, self.scenario, self.params, control_period))
+        self.stop_requested = False
+
+    def request_stop(self, *_: Any) -> None:
+        """Stop at the next tick boundary (signal handlers call this)."""
+        self.stop_requested = True
+
+    def run(self) -> TwinResult:
+        n_ticks = self.scenario.duration_ns // self.period_ns
+        # the whole schedule, evaluated once: the same values simulate() samples
+        com, fr, psr = (a.tolist() for a in self.scenario.inputs(
+            np.arange(n_ticks + 1, dtype=np.int64) * self.period_ns))
+        wall = time.perf_counter()
+        k = -1
+        for k in range(n_ticks + 1):
+            if self.stop_requested:
+                k -= 1
+                break
+            t_ns = k * self.period_ns
+            self.recorder.now_ns = t_ns
+            if t_ns % self.clock_period_ns == 0:
+                msg = clock_msg(t_ns)
+                self.recorder.record('/clock', msg)
+                self.clock_pub.publish(msg)
+            self.plant.begin_tick(t_ns, integrate=k < n_ticks)
+            self.command_generator.publish_values({'com': com[k]})
+            self.scheduler.publish_values({'fr': fr[k], 'psr': psr[k]})
+            self._spin_until(lambda: self.plant.done >= k, k)
+            self.recorder.tick_done()
+            if self.plant.pending() or self.ecu.pending():
+                raise TwinError(f'tick {k}: more inputs than the lockstep published -- another '
+                                f'graph is publishing the same topics on ROS_DOMAIN_ID='
+                                f'{os.environ.get("ROS_DOMAIN_ID", "0")}; give each run its own '
+                                'domain (or ROS_AUTOMATIC_DISCOVERY_RANGE=OFF)')
+        wall = time.perf_counter() - wall
+        result = TwinResult(valve_model=self.valve_model, scenario=self.scenario,
+                            params=self.params, control_period=self.control_period,
+                            ticks=k + 1, wall_s=wall, interrupted=k < n_ticks,
+                            bag=self.writer.dir if self.writer else None,
+                            messages=self.recorder.count)
+        if self.recorder.keep_values:
+            result.signals = self._signals()
+        return result
+
+    def _spin_until(self, done, k: int) -> None:
+        deadline = time.monotonic() + TICK_DEADLINE_S
+        while not done():
+            self.executor.spin_once(timeout_sec=0.1)
+            if time.monotonic() > deadline:
+                raise TwinError(f'tick {k} did not complete within {TICK_DEADLINE_S} s: an input '
+                                'is missing (another graph on the same ROS_DOMAIN_ID?)')
+
+    def _signals(self) -> dict[str, np.ndarray]:
+        """The 1 ms rows of ``simulate``'s CSV, from the recorded messages."""
+        out: dict[str, np.ndarray] = {}
+        n_rows = None
+        for col in CSV_COLUMNS[1:] + PORT_COLUMNS:
+            rows = [(t, v) for t, v in zip(*self.recorder.values(col))
+                    if t % OUTPUT_PERIOD_NS == 0]
+            if col in PORT_COLUMNS and not rows:
+                continue
+            out[col] = np.array([v for _, v in rows])
+            n_rows = len(rows) if n_rows is None else min(n_rows, len(rows))
+        n_rows = n_rows or 0
+        table = {'t': np.arange(n_rows) * (OUTPUT_PERIOD_NS * 1e-9)}
+        for col, arr in out.items():
+            table[col] = arr[:n_rows]
+        return table
+
+    def close(self) -> None:
+        """Finalize the bag, destroy the nodes, shut the context down; safe to call twice."""
+        if getattr(self, 'writer', None) is not None:
+            if getattr(self, 'recorder', None) is not None:
+                self.recorder.flush()
+            self.writer.close()
+        ex = getattr(self, 'executor', None)
+        if ex is not None:
+            ex.shutdown()
+            self.executor = None
+        for n in self.nodes:
+            n.destroy_node()
+        self.nodes = []
+        if self._own_context:
+            rclpy.try_shutdown(context=self.context)
+
+    def __enter__(self) -> 'Twin':
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _ros_param(name: str, params: EhaParams) -> Parameter:
+    value = params.value(name)
+    if isinstance(value, bool):
+        return Parameter(name, Parameter.Type.BOOL, value)
+    if isinstance(value, int):
+        return Parameter(name, Parameter.Type.INTEGER, value)
+    return Parameter(name, Parameter.Type.DOUBLE, float(value))
+
+
+def provenance(valve_model: str, scenario: Scenario, params: EhaParams,
+               control_period: float) -> dict[str, str]:
+    """What made a run, stored in the bag as MCAP metadata ``servovalve_twin``."""
+    import yaml
+    return {'package': 'servovalve_twin', 'version': __version__, 'valve_model': valve_model,
+            'control_period': repr(control_period), 'scenario_name': scenario.name,
+            'scenario': yaml.safe_dump(scenario.to_dict(), sort_keys=False),
+            'params': yaml.safe_dump({k: v for k, v in params.resolved().items()},
+                                     sort_keys=False)}
+
+
+def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
+             overrides: Mapping[str, Any] | None = None, *, control_period: float = 1e-3,
+             bag: str | Path | None = None, handle_signals: bool = True, **kwargs) -> TwinResult:
+    """Build, run and close a twin; SIGINT/SIGTERM finish the bag and return early."""
+    twin = Twin(valve_model, scenario, overrides, control_period=control_period, bag=bag,
+                **kwargs)
+    old = {}
+    if handle_signals:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, twin.request_stop)
+    try:
+        return twin.run()
+    finally:
+        twin.close()
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """``ros2 run servovalve_twin twin --ros-args -p valve_model:=C4 -p scenario:=paper
+    -p control_period:=0.001 -p bag:=bags/my_run``; other ``-p NAME:=VALUE`` set physical
+    parameters."""
+    from rclpy.utilities import remove_ros_args
+    argv = list(sys.argv if args is None else args)
+    if remove_ros_args(argv)[1:]:
+        print(f'usage: twin --ros-args -p valve_model:=NAME -p scenario:=NAME|FILE '
+              f'-p control_period:=S -p bag:=DIR [-p PARAM:=VALUE ...]', file=sys.stderr)
+        return 2
+    context = Context()
+    rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    cfg = Node('twin', context=context, allow_undeclared_parameters=True,
+               automatically_declare_parameters_from_overrides=True)
+    try:
+        values = {name: p.value for name, p in cfg.get_parameters_by_prefix('').items()}
+    finally:
+        cfg.destroy_node()
+    valve_model = values.pop('valve_model', 'C2')
+    scenario = values.pop('scenario', 'paper')
+    period = float(values.pop('control_period', 1e-3))
+    bag = values.pop('bag', '')
+    values.pop('use_sim_time', None)
+    overrides = {k: v for k, v in values.items() if k in PARAM_NAMES}
+    unknown = sorted(set(values) - set(overrides))
+    try:
+        if unknown:
+            raise TwinError(f'unknown parameter {unknown[0]!r}')
+        result = run_twin(valve_model, scenario, overrides, control_period=period,
+                          bag=bag or None, context=context, keep_values=False)
+    except TwinError as exc:
+        print(f'twin: error: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        rclpy.try_shutdown(context=context)
+    state = 'interrupted' if result.interrupted else 'done'
+    print(f'twin: {state}: {result.ticks} ticks of {period} s with {valve_model} in '
+          f'{result.wall_s:.2f} s (real-time factor '
+          f'{result.ticks * period / max(result.wall_s, 1e-9):.1f})'
+          + (f'; bag {result.bag}' if result.bag else ''))
+    return 130 if result.interrupted else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
