@@ -121,6 +121,93 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_run(args: argparse.Namespace) -> int:
+    import os
+    if not args.discoverable:
+        # one process, no discovery needed: nothing can cross-talk with another run
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    from .physics.scenario import load_scenario
+    from .physics.simulate import write_csv
+    from .twin import run_twin
+    scenario = load_scenario(args.scenario)
+    bag = None if args.no_bag else (args.bag or f'bags/{scenario.name}_{args.valve_model}')
+    result = run_twin(args.valve_model, scenario, _overrides(args),
+                      control_period=args.control_period, bag=bag, overwrite=args.overwrite,
+                      keep_values=args.out is not None, clock_period=args.clock_period)
+    if args.out:
+        write_csv(args.out, result.signals)
+    sim_s = result.simulated_s
+    print(f'{result.valve_model} on {scenario.name}: {sim_s:.3f} s simulated in '
+          f'{result.wall_s:.3f} s (real-time factor {sim_s / max(result.wall_s, 1e-9):.1f})'
+          + (f'; bag {result.bag}' if result.bag else '') + (f'; CSV {args.out}' if args.out
+                                                              else '')
+          + ('; INTERRUPTED' if result.interrupted else ''))
+    return 130 if result.interrupted else 0
+
+
+def _parse_tolerances(items: list[str]) -> dict[str, float]:
+    from .compare import COMPARED
+    out = {}
+    for item in items:
+        name, sep, value = item.partition('=')
+        name = name.strip().lower()
+        if name == 'current':
+            name = 'cor'
+        if not sep or name not in COMPARED:
+            raise TwinError(f'--tolerance expects SIGNAL=MAX with SIGNAL one of '
+                            f'{sorted(COMPARED)}, got {item!r}')
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise TwinError(f'--tolerance {item!r}: {value!r} is not a number') from None
+    return out
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from .compare import (check_same_inputs, error_metrics, exceeded, format_table, load_run,
+                          plot_overlay, write_json)
+    tolerances = _parse_tolerances(args.tolerance)
+    ref, windows = load_run(args.ref)
+    run, _ = load_run(args.run)
+    check_same_inputs(ref, run)
+    metrics = error_metrics(ref, run, windows)
+    print(f'{args.run} against {args.ref} (errors run - ref, RMS / max):')
+    print(format_table(metrics))
+    if args.json:
+        write_json(args.json, dict(ref=str(args.ref), run=str(args.run), windows=windows,
+                                   metrics=metrics, tolerances=tolerances))
+    if args.plot:
+        plot_overlay({Path(args.ref).stem: ref, Path(args.run).stem: run}, args.plot,
+                     reference=Path(args.ref).stem, title=f'{Path(args.run).stem} against '
+                     f'{Path(args.ref).stem}')
+    bad = exceeded(metrics, tolerances)
+    for line in bad:
+        print(f'tolerance exceeded: {line}')
+    return 1 if bad else 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    import os
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    from .bag.replay import replay
+    from .compare import format_table
+    _, result, metrics = replay(args.bag, valve_model=args.valve_model, out=args.out,
+                                overrides=_overrides(args))
+    print(f'replayed {args.bag} with {result.valve_model} into {result.bag}; new run against '
+          'the bag:')
+    print(format_table(metrics))
+    return 130 if result.interrupted else 0
+
+
+def cmd_reindex(args: argparse.Namespace) -> int:
+    from .bag.reader import reindex
+    meta = reindex(args.bag)
+    print(f'{args.bag}: rebuilt, {meta["message_count"]} messages over '
+          f'{meta["duration"]["nanoseconds"] * 1e-9:.3f} s in '
+          f'{len(meta["topics_with_message_count"])} topics')
+    return 0
+
+
 # -- parser ---------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
@@ -160,6 +247,44 @@ def build_parser() -> argparse.ArgumentParser:
     _add_param_options(p)
     p.set_defaults(func=cmd_report)
 
+    p = sub.add_parser('run', help='the ROS 2 twin (four nodes, one executor, simulated time) '
+                                   'on a scenario, recorded as a bag')
+    _add_run_options(p)
+    p.add_argument('--control-period', type=_positive_float, default=1e-3, metavar='S',
+                   help='lockstep period (default 0.001; must divide 1 ms)')
+    p.add_argument('--clock-period', type=_positive_float, default=1e-2, metavar='S',
+                   help='/clock publication period in simulated time (default 0.01)')
+    p.add_argument('--bag', metavar='DIR', help='bag directory (default bags/<scenario>_<model>)')
+    p.add_argument('--no-bag', action='store_true', help='do not record')
+    p.add_argument('--overwrite', action='store_true', help='replace an existing bag')
+    p.add_argument('--out', metavar='FILE.csv', help="the CSV of simulate, from the run's "
+                                                    'own messages')
+    p.add_argument('--discoverable', action='store_true',
+                   help='keep DDS discovery on (to watch the topics from other processes); by '
+                        'default the run is confined to its process')
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser('compare', help='errors of a run against a reference (bags or CSVs)')
+    p.add_argument('ref', metavar='REF')
+    p.add_argument('run', metavar='RUN')
+    p.add_argument('--plot', metavar='FILE.png')
+    p.add_argument('--json', metavar='FILE')
+    p.add_argument('--tolerance', action='append', default=[], metavar='SIGNAL=MAX',
+                   help='exit 1 when the whole-run max error of SIGNAL (xj, dxj, p12, xs, cor; '
+                        'SI units) exceeds MAX (repeatable)')
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser('replay', help="drive the ECU and plant with a bag's inputs, record, "
+                                      'compare with the bag')
+    p.add_argument('bag', metavar='BAG')
+    p.add_argument('--valve-model', metavar='NAME', help="default: the bag's")
+    p.add_argument('--out', metavar='DIR', help='new bag (default BAG_replay_<model>)')
+    _add_param_options(p)
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser('reindex', help='rebuild a bag (and metadata.yaml) cut short by a kill')
+    p.add_argument('bag', metavar='BAG')
+    p.set_defaults(func=cmd_reindex)
     return parser
 
 

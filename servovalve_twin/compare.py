@@ -132,3 +132,52 @@ def plot_overlay(runs: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def load_run(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, tuple[float, float]]]:
+    """A run's 1 ms signals from a bag (directory or .mcap) or a ``simulate`` CSV, and its
+    windows: the scenario's phases (split at every breakpoint) and named windows."""
+    from .bag.reader import read_bag
+    from .physics.simulate import read_csv
+    p = Path(path)
+    if p.suffix == '.csv':
+        signals = read_csv(p, require=('t', 'xj'))
+        return signals, _phases_from_inputs(signals)
+    run = read_bag(p)
+    windows: dict[str, tuple[float, float]] = {}
+    raw = run.scenario()
+    if raw is not None:
+        from .physics.scenario import scenario_from_dict
+        scn = scenario_from_dict(raw)
+        windows = {f'phase{i + 1}': span for i, span in enumerate(scn.phases())}
+        windows.update(scn.windows)
+    else:
+        windows = _phases_from_inputs(run.signals)
+    return run.signals, windows
+
+
+def _phases_from_inputs(signals: Mapping[str, np.ndarray], max_phases: int = 20
+                        ) -> dict[str, tuple[float, float]]:
+    """Phases split where Com, FR or PSR step (none for smoothly varying inputs)."""
+    t = np.asarray(signals['t'])
+    cuts = {float(t[0]), float(t[-1])}
+    for sig in ('com', 'fr', 'psr'):
+        if sig in signals:
+            v = np.asarray(signals[sig])
+            cuts.update(float(x) for x in t[1:][v[1:] != v[:-1]])
+    if len(cuts) - 1 > max_phases:
+        return {}
+    cuts_sorted = sorted(cuts)
+    return {f'phase{i + 1}': (a, b) for i, (a, b) in enumerate(zip(cuts_sorted, cuts_sorted[1:]))}
+
+
+def check_same_inputs(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray]) -> None:
+    """Two runs are comparable only if they were driven by the same Com, FR and PSR."""
+    i_ref, i_run, t = align(ref, run)
+    for sig in ('com', 'fr', 'psr'):
+        if sig in ref and sig in run:
+            a, b = np.asarray(ref[sig])[i_ref], np.asarray(run[sig])[i_run]
+            bad = np.nonzero(np.abs(a - b) > 1e-9 * np.maximum(1.0, np.abs(a)))[0]
+            if bad.size:
+                raise TwinError(f'the runs have different inputs: {sig} differs at t = '
+                                f'{t[bad[0]]:.3f} s ({a[bad[0]]:g} vs {b[bad[0]]:g})')

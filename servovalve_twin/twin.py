@@ -27,7 +27,7 @@ import struct
 import sys
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import rclpy
@@ -143,6 +143,7 @@ class TwinResult:
     control_period: float
     ticks: int
     wall_s: float
+    simulated_s: float
     interrupted: bool = False
     bag: Path | None = None
     signals: dict[str, np.ndarray] | None = None
@@ -167,10 +168,11 @@ class Twin:
                  bag: str | Path | None = None, keep_values: bool = True,
                  context: Context | None = None, args: Sequence[str] | None = None,
                  domain_id: int | None = None, overwrite: bool = False,
-                 clock_period: float = 1e-2, executor: str = 'events'):
+                 clock_period: float = 1e-2, executor: str = 'events',
+                 base_params: EhaParams | None = None):
         get_valve_model(valve_model)
         self.scenario = load_scenario(scenario)
-        self.params = effective_params(self.scenario, overrides)
+        self.params = effective_params(self.scenario, overrides, base_params)
         self.valve_model = valve_model
         self.control_period = control_period
         self.n_sub = steps_per(control_period, self.params, 'the control period')
@@ -235,7 +237,8 @@ class Twin:
         """Stop at the next tick boundary (signal handlers call this)."""
         self.stop_requested = True
 
-    def run(self) -> TwinResult:
+    def run(self, on_tick: Callable[[int, 'Twin'], None] | None = None) -> TwinResult:
+        """Run the scenario; ``on_tick(k, twin)`` is called after each tick (faults, tests)."""
         n_ticks = self.scenario.duration_ns // self.period_ns
         # the whole schedule, evaluated once: the same values simulate() samples
         com, fr, psr = (a.tolist() for a in self.scenario.inputs(
@@ -257,6 +260,8 @@ class Twin:
             self.scheduler.publish_values({'fr': fr[k], 'psr': psr[k]})
             self._spin_until(lambda: self.plant.done >= k, k)
             self.recorder.tick_done()
+            if on_tick is not None:
+                on_tick(k, self)
             if self.plant.pending() or self.ecu.pending():
                 raise TwinError(f'tick {k}: more inputs than the lockstep published -- another '
                                 f'graph is publishing the same topics on ROS_DOMAIN_ID='
@@ -266,6 +271,7 @@ class Twin:
         result = TwinResult(valve_model=self.valve_model, scenario=self.scenario,
                             params=self.params, control_period=self.control_period,
                             ticks=k + 1, wall_s=wall, interrupted=k < n_ticks,
+                            simulated_s=min(k + 1, n_ticks) * self.period_ns * 1e-9,
                             bag=self.writer.dir if self.writer else None,
                             messages=self.recorder.count)
         if self.recorder.keep_values:
@@ -281,20 +287,23 @@ class Twin:
                                 'is missing (another graph on the same ROS_DOMAIN_ID?)')
 
     def _signals(self) -> dict[str, np.ndarray]:
-        """The 1 ms rows of ``simulate``'s CSV, from the recorded messages."""
-        out: dict[str, np.ndarray] = {}
-        n_rows = None
+        """The 1 ms rows of ``simulate``'s CSV, from the recorded messages (P1, P2 NaN where
+        the model in force had no port pressures)."""
+        grid = None
+        cols: dict[str, dict[int, float]] = {}
         for col in CSV_COLUMNS[1:] + PORT_COLUMNS:
-            rows = [(t, v) for t, v in zip(*self.recorder.values(col))
-                    if t % OUTPUT_PERIOD_NS == 0]
-            if col in PORT_COLUMNS and not rows:
+            times, values = self.recorder.values(col)
+            cols[col] = {t // OUTPUT_PERIOD_NS: v for t, v in zip(times, values)
+                         if t % OUTPUT_PERIOD_NS == 0}
+            if col not in PORT_COLUMNS:
+                keys = set(cols[col])
+                grid = keys if grid is None else grid & keys
+        rows = sorted(grid or ())
+        table = {'t': np.array(rows) * (OUTPUT_PERIOD_NS * 1e-9)}
+        for col, by_ms in cols.items():
+            if col in PORT_COLUMNS and not by_ms:
                 continue
-            out[col] = np.array([v for _, v in rows])
-            n_rows = len(rows) if n_rows is None else min(n_rows, len(rows))
-        n_rows = n_rows or 0
-        table = {'t': np.arange(n_rows) * (OUTPUT_PERIOD_NS * 1e-9)}
-        for col, arr in out.items():
-            table[col] = arr[:n_rows]
+            table[col] = np.array([by_ms.get(ms, np.nan) for ms in rows])
         return table
 
     def close(self) -> None:
@@ -394,9 +403,9 @@ def main(args: Sequence[str] | None = None) -> int:
     finally:
         rclpy.try_shutdown(context=context)
     state = 'interrupted' if result.interrupted else 'done'
-    print(f'twin: {state}: {result.ticks} ticks of {period} s with {valve_model} in '
+    print(f'twin: {state}: {result.simulated_s:.3f} s simulated with {valve_model} in '
           f'{result.wall_s:.2f} s (real-time factor '
-          f'{result.ticks * period / max(result.wall_s, 1e-9):.1f})'
+          f'{result.simulated_s / max(result.wall_s, 1e-9):.1f})'
           + (f'; bag {result.bag}' if result.bag else ''))
     return 130 if result.interrupted else 0
 

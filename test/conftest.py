@@ -27,3 +27,27 @@ def runs():
     """Every registered model on the paper scenario with the default parameters."""
     from servovalve_twin.physics.valves import VALVE_MODEL_NAMES
     return {m: cached_run(m) for m in VALVE_MODEL_NAMES}
+
+
+@pytest.fixture
+def ros_context():
+    """A private, initialised rclpy context for one test (no global state, no signal hooks)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    ctx = Context()
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def console_script(name: str) -> str:
+    """Path of an installed console script of this package (next to the interpreter)."""
+    import shutil
+    path = Path(sys.executable).parent / name
+    if path.exists():
+        return str(path)
+    found = shutil.which(name)
+    if not found:
+        pytest.fail(f'console script {name!r} is not installed: run scripts/setup')
+    return found

@@ -118,7 +118,8 @@ class BagWriter:
     """
 
     def __init__(self, directory: str | Path, *, flush_every_ns: int | None = 50_000_000,
-                 overwrite: bool = False):
+                 overwrite: bool = False, file_name: str | None = None,
+                 library: str = f'servovalve_twin {__version__}'):
         self.dir = Path(directory)
         if self.dir.exists() and any(self.dir.iterdir()):
             if not overwrite:
@@ -127,10 +128,9 @@ class BagWriter:
                 if f.suffix in ('.mcap', '.yaml'):
                     f.unlink()
         self.dir.mkdir(parents=True, exist_ok=True)
-        self.file_name = f'{self.dir.name}_0.mcap'
+        self.file_name = file_name or f'{self.dir.name}_0.mcap'
         self._fh = open(self.dir / self.file_name, 'wb')
-        self._mcap = McapFileWriter(self._fh, profile='ros2',
-                                    library=f'servovalve_twin {__version__}')
+        self._mcap = McapFileWriter(self._fh, profile='ros2', library=library)
         self._schemas: dict[str, int] = {}
         self.topics: dict[str, dict[str, Any]] = {}
         self.channels: dict[str, int] = {}
@@ -141,13 +141,15 @@ class BagWriter:
         self._flush_every = flush_every_ns
         self.closed = False
 
-    def add_topic(self, topic: str, type_name: str, qos: list[dict] | None = None) -> None:
+    def add_topic(self, topic: str, type_name: str, qos: list[dict] | None = None,
+                  definition: bytes | None = None) -> None:
+        """Register a topic; ``definition`` (the schema text) defaults to the installed one."""
         if topic in self.channels:
             return
         if type_name not in self._schemas:
             self._schemas[type_name] = self._mcap.register_schema(
                 name=type_name, encoding='ros2msg',
-                data=message_definition(type_name).encode('utf-8'))
+                data=definition or message_definition(type_name).encode('utf-8'))
         qos = qos or qos_profiles()
         thash = type_hash(type_name)
         self.channels[topic] = self._mcap.register_channel(

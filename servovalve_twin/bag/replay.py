@@ -1,0 +1,104 @@
+"""Replay: drive the ECU and plant with a bag's Com, FR and PSR on simulated time, record the
+new run and compare it with the bag.
+
+The recorded inputs become a step scenario with a breakpoint wherever a recorded value changes,
+so the schedule nodes publish exactly the recorded values at every tick. Parameters, control
+period and (unless overridden) the valve model come from the bag's provenance record.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import BagError, TwinError
+from ..physics.params import DEFAULTS, PARAM_NAMES, EhaParams
+from ..physics.scenario import Scenario, scenario_from_dict
+from .reader import BagRun, read_bag
+
+
+def scenario_from_bag(run: BagRun) -> Scenario:
+    """The recorded Com, FR, PSR as a step scenario (breakpoints where a value changes)."""
+    raw: dict[str, Any] = {}
+    duration_ns = None
+    for sig in ('com', 'fr', 'psr'):
+        if f'/{sig}' not in run.series:
+            raise BagError(f'bag {str(run.path)!r} has no /{sig} topic to replay')
+        t, v = run.series[f'/{sig}']
+        if t.size == 0 or t[0] != 0:
+            raise BagError(f'bag {str(run.path)!r}: /{sig} does not start at t = 0')
+        keep = np.concatenate([[True], v[1:] != v[:-1]])
+        raw[sig] = [[float(ti) * 1e-9, float(vi)] for ti, vi in zip(t[keep], v[keep])]
+        duration_ns = int(t[-1]) if duration_ns is None else min(duration_ns, int(t[-1]))
+    raw['duration'] = duration_ns * 1e-9
+    raw['name'] = f'replay of {run.path.name}'
+    for sig in ('com', 'fr', 'psr'):
+        raw[sig] = [p for p in raw[sig] if p[0] <= raw['duration']]
+    return scenario_from_dict(raw)
+
+
+def bag_params(run: BagRun) -> EhaParams:
+    """The parameters the bag was recorded with (defaults for a bag without provenance)."""
+    values = {k: v for k, v in run.params().items() if k in PARAM_NAMES}
+    try:
+        return DEFAULTS.replace(**values)
+    except TwinError as exc:
+        raise BagError(f'bag {str(run.path)!r}: its recorded parameters are invalid: {exc}'
+                       ) from None
+
+
+def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path | None = None,
+           overrides: Mapping[str, Any] | None = None, overwrite: bool = True,
+           **twin_kwargs) -> tuple[BagRun, Any, dict]:
+    """Replay ``bag``; returns (the original, the new :class:`~..twin.TwinResult`, metrics of
+    the new run against the original)."""
+    from ..compare import error_metrics
+    from ..twin import run_twin
+    original = read_bag(bag)
+    scenario = scenario_from_bag(original)
+    model = valve_model or original.valve_model or 'C2'
+    period = original.control_period or 1e-3
+    src = Path(bag)
+    out = Path(out) if out is not None else src.parent / f'{src.name}_replay_{model}'
+    result = run_twin(model, scenario, overrides, control_period=period, bag=out,
+                      base_params=bag_params(original), overwrite=overwrite, **twin_kwargs)
+    new = read_bag(out)
+    windows = {}
+    sc = original.scenario()
+    if sc and sc.get('windows'):
+        windows = {k: tuple(v) for k, v in sc['windows'].items()}
+    metrics = error_metrics(original.signals, new.signals, windows)
+    return original, result, metrics
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """``ros2 run servovalve_twin replay --ros-args -p bag:=bags/paper_HD [-p valve_model:=C2]
+    [-p out:=DIR]``."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+    from ..compare import format_table
+    argv = list(sys.argv if args is None else args)
+    context = Context()
+    rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    cfg = Node('replay', context=context, allow_undeclared_parameters=True,
+               automatically_declare_parameters_from_overrides=True)
+    values = {n: p.value for n, p in cfg.get_parameters_by_prefix('').items()}
+    cfg.destroy_node()
+    try:
+        if not values.get('bag'):
+            raise TwinError('give the bag to replay: --ros-args -p bag:=DIR')
+        _, result, metrics = replay(values['bag'], valve_model=values.get('valve_model') or None,
+                                    out=values.get('out') or None, context=context)
+    except TwinError as exc:
+        print(f'replay: error: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        rclpy.try_shutdown(context=context)
+    print(f'replayed into {result.bag}')
+    print(format_table(metrics))
+    return 130 if result.interrupted else 0

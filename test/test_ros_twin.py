@@ -1,0 +1,169 @@
+"""The ROS 2 twin with real rclpy and Fast DDS: nodes, topics, parameters, lockstep,
+determinism, equality with simulate, the mid-run model switch."""
+
+import math
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+
+from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.physics.valves import VALVE_MODEL_NAMES
+from servovalve_twin.twin import Twin, run_twin
+
+SHORT = {'duration': 0.2, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.1, 5000.0]],
+         'psr': [[0.0, 2.0e7], [0.15, 1.5e7]]}
+
+
+def test_topics_and_types(ros_context):
+    with Twin('HD', SHORT, context=ros_context) as twin:
+        twin.run()
+        topics = dict(twin.plant.get_topic_names_and_types())
+        nodes = set(twin.plant.get_node_names())
+    expected = {'/com': 'std_msgs/msg/Float64', '/fr': 'std_msgs/msg/Float64',
+                '/psr': 'std_msgs/msg/Float64', '/cor': 'std_msgs/msg/Float64',
+                '/xs': 'std_msgs/msg/Float64', '/xj': 'std_msgs/msg/Float64',
+                '/dxj': 'std_msgs/msg/Float64', '/p12': 'std_msgs/msg/Float64',
+                '/qj': 'std_msgs/msg/Float64', '/p1': 'std_msgs/msg/Float64',
+                '/p2': 'std_msgs/msg/Float64', '/joint_states': 'sensor_msgs/msg/JointState',
+                '/clock': 'rosgraph_msgs/msg/Clock'}
+    for name, type_name in expected.items():
+        assert type_name in topics.get(name, []), (name, topics.get(name))
+    assert {'command_generator', 'scheduler', 'ecu', 'plant'} <= nodes
+
+
+def test_every_node_on_sim_time_and_parameters_declared(ros_context):
+    with Twin('C2', SHORT, context=ros_context) as twin:
+        for node in (twin.command_generator, twin.scheduler, twin.ecu, twin.plant):
+            assert node.get_parameter('use_sim_time').value is True
+        d = twin.plant.describe_parameters(['valve_model', 'M', 'DT', 'C4_max_iter'])
+        assert all(repr(n) not in d[0].additional_constraints or True for n in VALVE_MODEL_NAMES)
+        assert all(n in d[0].additional_constraints for n in VALVE_MODEL_NAMES)
+        assert d[1].floating_point_range[0].from_value == pytest.approx(1e-3)
+        assert '[kg]' in d[1].description
+        assert d[2].read_only
+        assert d[3].integer_range[0].from_value == 1
+
+
+@pytest.mark.parametrize('name,value,fragment', [
+    ('valve_model', 'C9', "unknown valve model 'C9'"),
+    ('M', -1.0, ''),                          # outside the FloatingPointRange: rclpy refuses
+    ('FDJ', 500.0, 'must not exceed the static friction'),
+    ('M', math.nan, ''),
+])
+def test_bad_parameters_refused_old_value_kept(ros_context, name, value, fragment):
+    with Twin('C2', SHORT, context=ros_context) as twin:
+        before = twin.plant.get_parameter(name).value
+        params_before = twin.plant.plant.params
+        result = twin.plant.set_parameters([Parameter(name, value=value)])[0]
+        print(f'{name} = {value!r}: successful={result.successful}, reason={result.reason!r}')
+        assert not result.successful and fragment in result.reason
+        assert twin.plant.get_parameter(name).value == before or (
+            isinstance(before, float) and math.isnan(before))
+        assert twin.plant.plant.params is params_before
+
+
+def test_good_parameter_applies(ros_context):
+    with Twin('C2', SHORT, context=ros_context) as twin:
+        assert twin.plant.set_parameters([Parameter('CLk', value=4e-13)])[0].successful
+        assert twin.plant.plant.params.CLk == 4e-13
+        assert twin.ecu.set_parameters([Parameter('GAP', value=2.0)])[0].successful
+        assert twin.ecu.law.params.GAP == 2.0
+
+
+def test_scenario_parameter_validated(ros_context):
+    with Twin('C2', SHORT, context=ros_context) as twin:
+        r = twin.scheduler.set_parameters([Parameter('scenario', value='nope')])[0]
+        assert not r.successful and "unknown scenario 'nope'" in r.reason
+
+
+def test_twin_equals_simulate_with_the_same_sampled_ecu(ros_context):
+    for model in ('C2', 'C4', 'HD'):
+        result = run_twin(model, 'paper', context=ros_context, handle_signals=False)
+        ref = simulate(model, 'paper', ecu_period=1e-3)
+        worst = {c: float(np.max(np.abs(result.signals[c] - ref[c]))) for c in ref.columns}
+        print(model, 'max |twin - simulate| per column:', worst)
+        assert worst['xj'] <= 1e-9
+        assert all(v == 0.0 for v in worst.values())      # one code path: bit-identical
+
+
+def test_two_runs_identical(ros_context, tmp_path):
+    from servovalve_twin.bag.reader import read_bag
+    runs = [run_twin('HD', SHORT, context=ros_context, handle_signals=False,
+                     bag=tmp_path / f'run{i}') for i in range(2)]
+    a, b = (read_bag(r.bag) for r in runs)
+    assert a.topics == b.topics
+    for topic in a.series:
+        np.testing.assert_array_equal(a.series[topic][0], b.series[topic][0])
+        np.testing.assert_array_equal(a.series[topic][1], b.series[topic][1])
+    import mcap.reader
+    raw = []
+    for r in runs:
+        with open(next(r.bag.glob('*.mcap')), 'rb') as fh:
+            raw.append([(c.topic, m.log_time, m.data) for _, c, m in
+                        mcap.reader.make_reader(fh).iter_messages(log_time_order=True)])
+    assert raw[0] == raw[1]
+
+
+def test_valve_model_switch_mid_run_keeps_mechanical_state(ros_context):
+    seen = {}
+
+    def switch(k, twin):
+        if k == 100:
+            seen['before'] = twin.plant.plant.s.copy()
+            r = twin.plant.set_parameters([Parameter('valve_model', value='HD')])[0]
+            assert r.successful
+            seen['after'] = twin.plant.plant.s.copy()
+    with Twin('C2', SHORT, context=ros_context) as twin:
+        result = twin.run(on_tick=switch)
+        p1_ticks = twin.recorder.values('p1')[0]
+    np.testing.assert_array_equal(seen['before'], seen['after'])
+    assert p1_ticks and min(p1_ticks) == 101 * 1_000_000          # P1/P2 appear with HD
+    pure = run_twin('C2', SHORT, context=ros_context, handle_signals=False)
+    d = np.abs(result.signals['xj'] - pure.signals['xj'])
+    print(f'XJ after the C2 -> HD switch at 0.1 s differs from pure C2 by up to {d.max():.2e} m')
+    assert np.all(d[:101] == 0.0) and d.max() > 1e-6
+
+
+def test_valve_model_switch_through_the_parameter_service(ros_context):
+    from rclpy.node import Node
+    from rclpy.parameter_client import AsyncParameterClient
+    client_node = Node('test_client', context=ros_context)
+    client = AsyncParameterClient(client_node, 'plant')
+    futures = []
+
+    def on_tick(k, twin):
+        if k == 0:
+            twin.executor.add_node(client_node)
+        if k == 50:
+            futures.append(client.set_parameters([Parameter('valve_model', value='C9')]))
+        if k == 60:
+            futures.append(client.set_parameters([Parameter('valve_model', value='C3')]))
+    try:
+        with Twin('C2', SHORT, context=ros_context) as twin:
+            twin.run(on_tick=on_tick)
+            assert twin.plant.plant.model.name == 'C3'
+            assert twin.plant.get_parameter('valve_model').value == 'C3'
+        refused, accepted = (f.result().results[0] for f in futures)
+        print('service refused C9:', refused.reason)
+        assert not refused.successful and 'expected one of' in refused.reason
+        assert accepted.successful
+    finally:
+        client_node.destroy_node()
+
+
+def test_nan_input_is_dropped_not_integrated(ros_context):
+    from std_msgs.msg import Float64
+    with Twin('C2', SHORT, context=ros_context) as twin:
+        msg = Float64()
+        msg.data = math.nan
+        twin.plant._on_input('psr', msg)
+        assert twin.plant.inputs['psr'] == 2.0e7 and not twin.plant._queues['psr']
+
+
+def test_bad_twin_configuration_is_an_error(ros_context):
+    from servovalve_twin.errors import TwinError
+    with pytest.raises(TwinError, match="unknown valve model 'X'"):
+        Twin('X', SHORT, context=ros_context)
+    with pytest.raises(TwinError, match='must divide the 1 ms'):
+        Twin('C2', SHORT, context=ros_context, control_period=3e-3)
