@@ -8,6 +8,8 @@ a one-line message on stderr (never a traceback); 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -121,11 +123,30 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _discovery_off(enabled: bool = True):
+    """A single-process twin needs no DDS discovery; without it no other graph on the same
+    ROS_DOMAIN_ID can cross-talk with the lockstep. rcl reads the variable when a context is
+    initialised, so it is set for the run only and restored after."""
+    key = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
+    saved = os.environ.get(key)
+    if enabled:
+        os.environ[key] = 'OFF'
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = saved
+
+
 def cmd_run(args: argparse.Namespace) -> int:
-    import os
-    if not args.discoverable:
-        # one process, no discovery needed: nothing can cross-talk with another run
-        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    with _discovery_off(not args.discoverable):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from .physics.scenario import load_scenario
     from .physics.simulate import write_csv
     from .twin import run_twin
@@ -133,7 +154,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     bag = None if args.no_bag else (args.bag or f'bags/{scenario.name}_{args.valve_model}')
     result = run_twin(args.valve_model, scenario, _overrides(args),
                       control_period=args.control_period, bag=bag, overwrite=args.overwrite,
-                      keep_values=args.out is not None, clock_period=args.clock_period)
+                      keep_values=args.out is not None, clock_period=args.clock_period,
+                      on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
+                      if args.progress else None)
     if args.out:
         write_csv(args.out, result.signals)
     sim_s = result.simulated_s
@@ -187,12 +210,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    import os
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
     from .bag.replay import replay
     from .compare import format_table
-    _, result, metrics = replay(args.bag, valve_model=args.valve_model, out=args.out,
-                                overrides=_overrides(args))
+    with _discovery_off():
+        _, result, metrics = replay(args.bag, valve_model=args.valve_model, out=args.out,
+                                    overrides=_overrides(args))
     print(f'replayed {args.bag} with {result.valve_model} into {result.bag}; new run against '
           'the bag:')
     print(format_table(metrics))
@@ -259,6 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--overwrite', action='store_true', help='replace an existing bag')
     p.add_argument('--out', metavar='FILE.csv', help="the CSV of simulate, from the run's "
                                                     'own messages')
+    p.add_argument('--progress', action='store_true',
+                   help="print 'flushed up to T s' each time the bag is flushed (50 ms)")
     p.add_argument('--discoverable', action='store_true',
                    help='keep DDS discovery on (to watch the topics from other processes); by '
                         'default the run is confined to its process')
@@ -297,8 +321,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'servovalve-twin {args.command}: error: {exc}', file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f'servovalve-twin {args.command}: error: {exc.strerror}: '
-              f'{exc.filename or ""}'.rstrip(': '), file=sys.stderr)
+        what = f'{exc.strerror}: {exc.filename}' if exc.strerror and exc.filename else exc
+        print(f'servovalve-twin {args.command}: error: {what}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f'servovalve-twin {args.command}: interrupted', file=sys.stderr)

@@ -57,7 +57,21 @@ from .physics.valves import get_valve_model
 TICK_DEADLINE_S = 5.0
 #: rclpy's EventsExecutor was measured several times cheaper per callback than the
 #: SingleThreadedExecutor here (bench/bench_twin.py); the latter is kept for comparison.
-EXECUTORS = {'events': EventsExecutor, 'single': SingleThreadedExecutor}
+def _events_executor(*, context: Context):
+    """rclpy's EventsExecutor calls ``faulthandler.enable()`` on ``sys.stderr``, which fails
+    where stderr is not a real file (Jupyter, pytest's capture): hand it the process's own."""
+    try:
+        sys.stderr.fileno()
+        return EventsExecutor(context=context)
+    except (AttributeError, OSError, ValueError):
+        saved, sys.stderr = sys.stderr, sys.__stderr__
+        try:
+            return EventsExecutor(context=context)
+        finally:
+            sys.stderr = saved
+
+
+EXECUTORS = {'events': _events_executor, 'single': SingleThreadedExecutor}
 
 
 def _type_name(msg_type: type) -> str:
@@ -80,6 +94,7 @@ class Recorder:
         self.now_ns = 0
         self.flush_ns = flush_ns
         self._flushed_ns = 0
+        self.on_flush: Callable[[float], None] | None = None   # called with the flushed time
         self.types = {f'/{t}': _type_name(spec[0]) for t, spec in TOPICS.items()}
         self.types['/clock'] = 'rosgraph_msgs/msg/Clock'
         self.encoders = {topic: ENCODERS[tn] for topic, tn in self.types.items()}
@@ -122,6 +137,8 @@ class Recorder:
                 times.clear()
                 values.clear()
         self.writer.flush()
+        if self.on_flush is not None:
+            self.on_flush(self.now_ns * 1e-9)
 
     def values(self, topic: str) -> tuple[list[int], list[float]]:
         return self._pending[topic]
@@ -169,7 +186,8 @@ class Twin:
                  context: Context | None = None, args: Sequence[str] | None = None,
                  domain_id: int | None = None, overwrite: bool = False,
                  clock_period: float = 1e-2, executor: str = 'events',
-                 base_params: EhaParams | None = None):
+                 base_params: EhaParams | None = None,
+                 on_flush: Callable[[float], None] | None = None):
         get_valve_model(valve_model)
         self.scenario = load_scenario(scenario)
         self.params = effective_params(self.scenario, overrides, base_params)
@@ -214,6 +232,7 @@ class Twin:
             self.clock = Node('twin_clock', **kw, parameter_overrides=[sim])
             self.clock_pub = self.clock.create_publisher(Clock, '/clock', 10)
             self.recorder = Recorder(self.writer, keep_values=keep_values)
+            self.recorder.on_flush = on_flush
             self.nodes = [self.command_generator, self.scheduler, self.ecu, self.plant,
                           self.clock]
             for n in self.nodes[:4]:
@@ -389,7 +408,8 @@ def main(args: Sequence[str] | None = None) -> int:
     scenario = values.pop('scenario', 'paper')
     period = float(values.pop('control_period', 1e-3))
     bag = values.pop('bag', '')
-    values.pop('use_sim_time', None)
+    for builtin in ('use_sim_time', 'start_type_description_service'):
+        values.pop(builtin, None)                 # declared by every rclpy node
     overrides = {k: v for k, v in values.items() if k in PARAM_NAMES}
     unknown = sorted(set(values) - set(overrides))
     try:

@@ -89,7 +89,11 @@ def main(args: Sequence[str] | None = None) -> int:
                automatically_declare_parameters_from_overrides=True)
     values = {n: p.value for n, p in cfg.get_parameters_by_prefix('').items()}
     cfg.destroy_node()
+    unknown = sorted(set(values) - {'bag', 'valve_model', 'out', 'use_sim_time',
+                                    'start_type_description_service'})
     try:
+        if unknown:
+            raise TwinError(f'unknown parameter {unknown[0]!r}; expected bag, valve_model, out')
         if not values.get('bag'):
             raise TwinError('give the bag to replay: --ros-args -p bag:=DIR')
         _, result, metrics = replay(values['bag'], valve_model=values.get('valve_model') or None,

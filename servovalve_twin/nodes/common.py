@@ -7,6 +7,7 @@ Topics are relative names, so ``--ros-args -r __ns:=/eha`` moves a whole graph.
 from __future__ import annotations
 
 import math
+import signal
 import sys
 from typing import Any, Callable, Iterable, Sequence
 
@@ -15,6 +16,7 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType, SetParametersResult)
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -172,8 +174,18 @@ def validation_result(fn: Callable[[], Any]) -> SetParametersResult:
 
 def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Jazzy's idiom for a node run alone (``ros2 run`` / console script): SIGINT and SIGTERM
-    end it cleanly; bad parameters at start-up are one line and exit code 2."""
-    rclpy.init(args=list(args) if args is not None else sys.argv)
+    end it cleanly; bad parameters at start-up are one line and exit code 2.
+
+    rclpy's own signal handler shuts the context down under the executor, which then fails to
+    build its wait set (a race seen with SIGTERM); both signals instead raise
+    KeyboardInterrupt in the spinning thread, and the ``finally`` below shuts down in order.
+    """
+    def interrupt(*_):
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGTERM, interrupt)
+    signal.signal(signal.SIGINT, interrupt)
+    rclpy.init(args=list(args) if args is not None else sys.argv,
+               signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         node = factory()

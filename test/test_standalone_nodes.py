@@ -1,0 +1,116 @@
+"""Each node run alone as a ROS user runs it (`ros2 run servovalve_twin plant --ros-args ...`):
+a subprocess whose parameters and topics a test node reads back over DDS."""
+
+import signal
+import subprocess
+import time
+
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter_client import AsyncParameterClient
+from std_msgs.msg import Float64
+from sensor_msgs.msg import JointState
+
+from servovalve_twin.nodes.common import QOS
+from conftest import ROOT, console_script
+
+
+def spin_until(ex, cond, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while not cond():
+        ex.spin_once(timeout_sec=0.05)
+        if time.monotonic() > deadline:
+            return False
+    return True
+
+
+@pytest.fixture
+def plant_process():
+    proc = subprocess.Popen([console_script('plant'), '--ros-args', '-p', 'valve_model:=C4',
+                             '--params-file', str(ROOT / 'config' / 'eha.yaml'),
+                             '-p', 'M:=400.0'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    yield proc
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+def test_standalone_plant_parameters_and_topics(ros_context, plant_process):
+    node = Node('probe', context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    got = {'xj': [], 'joint_states': [], 'p12': []}
+    node.create_subscription(Float64, 'xj', lambda m: got['xj'].append(m.data), QOS)
+    node.create_subscription(Float64, 'p12', lambda m: got['p12'].append(m.data), QOS)
+    node.create_subscription(JointState, 'joint_states', lambda m: got['joint_states'].append(m),
+                             QOS)
+    # drive it: a current that opens the valve, as the ECU would
+    cor = node.create_publisher(Float64, 'cor', QOS)
+    msg = Float64()
+    msg.data = 0.004
+    client = AsyncParameterClient(node, 'plant')
+    try:
+        assert spin_until(ex, lambda: client.services_are_ready()), 'plant did not come up: ' \
+            + (plant_process.stderr.read() if plant_process.poll() is not None else '')
+        fut = client.get_parameters(['valve_model', 'M', 'CLk', 'use_sim_time'])
+        assert spin_until(ex, fut.done)
+        values = [p.string_value or p.double_value or p.bool_value for p in fut.result().values]
+        print('plant parameters read back:', values)
+        assert values[0] == 'C4' and values[1] == 400.0 and values[2] == 2e-13
+        assert spin_until(ex, lambda: len(got['xj']) > 20)
+        for _ in range(200):
+            cor.publish(msg)
+            ex.spin_once(timeout_sec=0.01)
+        assert spin_until(ex, lambda: got['xj'] and got['xj'][-1] > 1e-4)
+        js = got['joint_states'][-1]
+        assert js.name == ['jack'] and js.header.stamp.sec + js.header.stamp.nanosec > 0
+        print(f'standalone plant: {len(got["xj"])} XJ messages, last XJ {got["xj"][-1]:.6f} m')
+        # a refused set: unknown model, with the reason, old value kept
+        fut = client.set_parameters([__import__('rclpy').parameter.Parameter('valve_model',
+                                                                            value='C9')])
+        assert spin_until(ex, fut.done)
+        assert not fut.result().results[0].successful
+        assert 'expected one of' in fut.result().results[0].reason
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+    plant_process.send_signal(signal.SIGINT)
+    out, err = plant_process.communicate(timeout=20)
+    print('plant exit code', plant_process.returncode, err[-300:])
+    assert plant_process.returncode == 0 and 'Traceback' not in err
+
+
+@pytest.mark.parametrize('name', ['command_generator', 'scheduler', 'ecu', 'plant', 'clock'])
+def test_each_executable_starts_and_stops_cleanly(name):
+    proc = subprocess.Popen([console_script(name), '--ros-args', '-p', 'use_sim_time:=false'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(1.5)
+    assert proc.poll() is None, proc.stderr.read()
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err
+
+
+def test_bad_start_up_parameter_is_one_line_exit_2():
+    r = subprocess.run([console_script('plant'), '--ros-args', '-p', 'valve_model:=C9'],
+                       capture_output=True, text=True, timeout=30)
+    print(r.stderr)
+    assert r.returncode == 2 and "unknown valve model 'C9'" in r.stderr
+    assert 'Traceback' not in r.stderr
+    r = subprocess.run([console_script('plant'), '--ros-args', '-p', 'M:=-3.0'],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and 'M' in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_twin_executable(tmp_path):
+    r = subprocess.run([console_script('twin'), '--ros-args', '-p', 'valve_model:=C3',
+                        '-p', f'bag:={tmp_path / "t"}', '-p', 'scenario:=defaults',
+                        '-p', 'CLk:=3.0e-13'], capture_output=True, text=True, timeout=120)
+    print(r.stdout, r.stderr[-500:])
+    assert r.returncode == 0 and 'done' in r.stdout
+    from servovalve_twin.bag.reader import read_bag
+    run = read_bag(tmp_path / 't')
+    assert run.valve_model == 'C3' and run.params()['CLk'] == 3e-13
