@@ -19,6 +19,12 @@ from .physics.simulate import RunResult, simulate
 from .physics.valves import VALVE_MODEL_NAMES
 
 BEGIN, END = '<!-- results:begin -->', '<!-- results:end -->'
+BEYOND_BEGIN, BEYOND_END = '<!-- beyond:begin -->', '<!-- beyond:end -->'
+#: issue 6: the scenarios of the comparison, with the windows reported beside the whole run
+BEYOND_SCENARIOS = (('paper', None, ('overstall', 'braking')),
+                    ('paper', {'CLk': 2e-12}, ('overstall', 'braking')),
+                    ('sine_opposing', None, ('late',)))
+BEYOND_MODELS = ('SQ', 'C1', 'C2', 'C3')
 DROP_WINDOW = ('overstall', (0.35, 0.50))
 
 
@@ -69,12 +75,62 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
             f'and the over-stall window 0.35-0.50 s). Back movement = XJ(0.35 s) - min XJ over '
             f'0.35-0.60 s. Regenerate with `servovalve-twin report --readme README.md`; '
             f'figures in `{out_dir.as_posix()}/`.')
+    beyond = beyond_report(out_dir)
     if readme is not None:
         body = readme.read_text(encoding='utf-8')
-        if BEGIN not in body or END not in body:
-            from .errors import TwinError
-            raise TwinError(f'{readme} has no {BEGIN} ... {END} section to replace')
-        body = re.sub(re.escape(BEGIN) + '.*?' + re.escape(END),
-                      lambda _m: f'{BEGIN}\n{text}\n{END}', body, flags=re.S)
+        for begin, end, section in ((BEGIN, END, text), (BEYOND_BEGIN, BEYOND_END, beyond)):
+            if begin not in body or end not in body:
+                from .errors import TwinError
+                raise TwinError(f'{readme} has no {begin} ... {end} section to replace')
+            body = re.sub(re.escape(begin) + '.*?' + re.escape(end),
+                          lambda _m, b=begin, e=end, t=section: f'{b}\n{t}\n{e}', body,
+                          flags=re.S)
         readme.write_text(body, encoding='utf-8')
-    return text
+    return text + '\n\n' + beyond
+
+
+def step_cost_us(model: str, scenario: str = 'paper', repeat: int = 5) -> float:
+    """Median physics cost per plant step [us] (compiled; the first, compiling run dropped)."""
+    import statistics
+    simulate(model, scenario)
+    walls = [simulate(model, scenario) for _ in range(repeat)]
+    return statistics.median(r.info['wall_s'] / r.info['steps'] for r in walls) * 1e6
+
+
+def beyond_report(out_dir: Path) -> str:
+    """Issue 6: SQ against C1, C2, C3 on three scenarios, errors against HD and step cost."""
+    from .physics.scenario import load_scenario
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cost = {m: step_cost_us(m) for m in BEYOND_MODELS}
+    lines = ['| scenario | model | XJ rms / max [mm] | DXJ rms / max [mm/s] | P12 rms / max [MPa] '
+             '| window | XJ rms / max [mm] | DXJ rms / max [mm/s] | P12 rms / max [MPa] | '
+             'step cost [us] |', '|---|---|---|---|---|---|---|---|---|---|']
+    for scenario, overrides, wins in BEYOND_SCENARIOS:
+        scn = load_scenario(scenario)
+        label = scenario + (' ' + ', '.join(f'{k}={v:g}' for k, v in overrides.items())
+                            if overrides else '')
+        ref = simulate('HD', scn, overrides)
+        runs = {'HD': ref.signals}
+        for model in BEYOND_MODELS:
+            r = simulate(model, scn, overrides)
+            runs[model] = r.signals
+            m = error_metrics(ref.signals, r.signals, {w: scn.windows[w] for w in wins},
+                              ('xj', 'dxj', 'p12'))
+            for i, w in enumerate(wins):
+                t0, t1 = scn.windows[w]
+                first = i == 0
+                cells = [label if first else '', model if first else '',
+                         *(_cells(m['all']) if first else ['', '', '']), f'{w} {t0:g}-{t1:g} s',
+                         *_cells(m[w]), f'{cost[model]:.3f}' if first else '']
+                lines.append('| ' + ' | '.join(cells) + ' |')
+        tag = scenario + ('_CLk' if overrides else '')
+        plot_overlay({k: runs[k] for k in ('HD', 'C2', 'SQ')}, out_dir / f'beyond_{tag}.png',
+                     reference='HD', title=f'SQ and C2 against HD: {label}')
+    return ('\n'.join(lines) + '\n\nErrors are run - HD over the 1 ms rows. Step cost: median '
+            'physics time per 10 us plant step over 5 runs of the paper scenario on this '
+            'machine (`servovalve-twin report`).')
+
+
+def _cells(m) -> list[str]:
+    return [f'{m[s]["rms"] * k:.3g} / {m[s]["max"] * k:.3g}'
+            for s, k in (('xj', 1e3), ('dxj', 1e3), ('p12', 1e-6))]

@@ -114,3 +114,36 @@ def test_twin_executable(tmp_path):
     from servovalve_twin.bag.reader import read_bag
     run = read_bag(tmp_path / 't')
     assert run.valve_model == 'C3' and run.params()['CLk'] == 3e-13
+
+
+def test_multi_process_graph_shares_simulated_time(ros_context):
+    """`clock` drives simulated time for nodes in other processes (use_sim_time:=true)."""
+    from rosgraph_msgs.msg import Clock
+    procs = [subprocess.Popen([console_script('clock'), '--ros-args', '-p', 'rate:=4.0'],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
+             subprocess.Popen([console_script('command_generator'), '--ros-args',
+                               '-p', 'use_sim_time:=true', '-p', 'scenario:=paper'],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)]
+    node = Node('probe_time', context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    clock = []
+    com = []
+    node.create_subscription(Clock, '/clock', lambda m: clock.append(
+        m.clock.sec + m.clock.nanosec * 1e-9), 10)
+    node.create_subscription(Float64, 'com', lambda m: com.append((clock[-1] if clock else -1,
+                                                                  m.data)), QOS)
+    try:
+        # the paper's command steps from 0.02 to 0.03 m at 0.30 s of scenario time
+        assert spin_until(ex, lambda: any(v == 0.03 for _, v in com), timeout=30)
+        first = next(t for t, v in com if v == 0.03)
+        start = next(t for t, v in com)
+        print(f'Com reached 0.03 m at simulated {first:.3f} s (first Com at {start:.3f} s)')
+        assert 0.25 <= first - start <= 0.40
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        for p in procs:
+            p.send_signal(signal.SIGINT)
+            p.communicate(timeout=20)
+            assert p.returncode == 0

@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable, Sequence
 import rclpy
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -179,6 +179,8 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
     rclpy's own signal handler shuts the context down under the executor, which then fails to
     build its wait set (a race seen with SIGTERM); both signals instead raise
     KeyboardInterrupt in the spinning thread, and the ``finally`` below shuts down in order.
+    The executor waits at most 0.1 s at a time so that the Python handler runs even when no
+    event comes (a sim-time timer whose ``/clock`` has stopped).
     """
     def interrupt(*_):
         raise KeyboardInterrupt
@@ -189,7 +191,10 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
     node = None
     try:
         node = factory()
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (TwinError, ParameterError) as exc:

@@ -161,7 +161,8 @@ class EhaParams:
         """The flat, all-float tuple that the compiled physics reads (derived values resolved)."""
         vals = self.resolved()
         vals = {n: float(v) for n, v in vals.items()}
-        return KernelParams(**vals, GPN=self.gpn, k=self.k)
+        return KernelParams(**vals, GPN=self.gpn, k=self.k,
+                            SQ_K=self.gpn / (self.GPQ * math.sqrt(self.PSRN)))
 
     def kernel_array(self) -> np.ndarray:
         """The same values as a one-element structured array: numba unboxes it in about 0.3 us
@@ -193,7 +194,9 @@ class EhaParams:
 PARAM_FIELDS = {f.name: f for f in dataclasses.fields(EhaParams)}
 PARAM_NAMES = tuple(PARAM_FIELDS)
 
-KernelParams = collections.namedtuple('KernelParams', PARAM_NAMES + ('GPN', 'k'))
+# derived constants the compiled models read: GPN = PSRN/XSS, k = CLk*GPQ and SQ's orifice
+# coefficient GQN/sqrt(PSRN) (valves/orifice.py), computed once instead of every step
+KernelParams = collections.namedtuple('KernelParams', PARAM_NAMES + ('GPN', 'k', 'SQ_K'))
 KernelParams.__doc__ = 'All-float parameter tuple read by the compiled physics.'
 KERNEL_DTYPE = np.dtype([(n, np.float64) for n in KernelParams._fields])
 

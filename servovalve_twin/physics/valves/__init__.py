@@ -30,6 +30,7 @@ import numpy as np
 from ...errors import ModelError
 from ..params import EhaParams
 from . import simplified as _s
+from .orifice import model_sq
 from ..valve_state import (V_CAV, V_FAIL, V_ITER, V_NONCONV, V_P1, V_P2, V_XJ, VS_SIZE,
                            new_state)
 from ..hd import hd_solve
@@ -96,6 +97,8 @@ VALVE_MODELS: dict[str, ValveModel] = {m.name: m for m in (
     ValveModel('C4', _s.model_c4, 'Figs. 16-17',
                'fixed point of P12 = sat(U - k*P12, PSR) by a pseudo-dynamic short run',
                iterative=True),
+    ValveModel('SQ', model_sq, 'beyond the paper (issue 6)',
+               'explicit four-edge orifice law: sqrt load droop, P12 > PSR when over-run'),
     ValveModel('HD', hd_solve, 'Fig. 23 reference',
                'four-edge valve: laps, clearance, orifice + laminar gap, port continuity',
                has_ports=True, iterative=True),
