@@ -116,14 +116,19 @@ def test_twin_executable(tmp_path):
     assert run.valve_model == 'C3' and run.params()['CLk'] == 3e-13
 
 
-def test_multi_process_graph_shares_simulated_time(ros_context):
-    """`clock` drives simulated time for nodes in other processes (use_sim_time:=true)."""
+def test_multi_process_graph_shares_simulated_time(ros_context, tmp_path):
+    """`clock` drives simulated time for nodes in other processes (use_sim_time:=true): the
+    command pulses to 0.03 m for 0.45 s of scenario time every 1.5 s, so whenever discovery
+    lets the probe in, it sees a whole pulse, 0.45 s long on the shared /clock."""
+    points = [[0.0, 0.02]]
+    for i in range(1, 40):
+        points += [[1.5 * i, 0.03], [1.5 * i + 0.45, 0.02]]
+    scenario = tmp_path / 'pulses.yaml'
+    scenario.write_text(f'duration: 61.0\ncom: {points}\n')
     from rosgraph_msgs.msg import Clock
-    procs = [subprocess.Popen([console_script('clock'), '--ros-args', '-p', 'rate:=4.0'],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
-             subprocess.Popen([console_script('command_generator'), '--ros-args',
-                               '-p', 'use_sim_time:=true', '-p', 'scenario:=paper'],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)]
+    clock_proc = subprocess.Popen([console_script('clock'), '--ros-args', '-p', 'rate:=2.0'],
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    procs = [clock_proc]
     node = Node('probe_time', context=ros_context)
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
@@ -131,19 +136,30 @@ def test_multi_process_graph_shares_simulated_time(ros_context):
     com = []
     node.create_subscription(Clock, '/clock', lambda m: clock.append(
         m.clock.sec + m.clock.nanosec * 1e-9), 10)
-    node.create_subscription(Float64, 'com', lambda m: com.append((clock[-1] if clock else -1,
-                                                                  m.data)), QOS)
+    # Com stamped with the probe's latest /clock (Com received before any /clock is ignored)
+    node.create_subscription(Float64, 'com', lambda m: clock and com.append((clock[-1], m.data)),
+                             QOS)
     try:
-        # the paper's command steps from 0.02 to 0.03 m at 0.30 s of scenario time
-        assert spin_until(ex, lambda: any(v == 0.03 for _, v in com), timeout=30)
-        first = next(t for t, v in com if v == 0.03)
-        start = next(t for t, v in com)
-        print(f'Com reached 0.03 m at simulated {first:.3f} s (first Com at {start:.3f} s)')
-        assert 0.25 <= first - start <= 0.40
+        assert spin_until(ex, lambda: len(clock) > 10)
+        procs.append(subprocess.Popen([console_script('command_generator'), '--ros-args',
+                                       '-p', 'use_sim_time:=true', '-p', f'scenario:={scenario}'],
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+        def edges():
+            """Times of the first observed rise to 0.03 and the fall after it."""
+            rise = next((b[0] for a, b in zip(com, com[1:]) if a[1] == 0.02 and b[1] == 0.03),
+                        None)
+            fall = next((b[0] for a, b in zip(com, com[1:]) if rise is not None
+                         and a[0] >= rise and a[1] == 0.03 and b[1] == 0.02), None)
+            return rise, fall
+        ok = spin_until(ex, lambda: edges()[1] is not None, timeout=30)
+        assert ok, (len(clock), clock[-1:], len(com), com[:3], com[-3:], procs[1].poll())
+        up, down = edges()
+        print(f'Com 0.02 -> 0.03 m at {up:.3f} s and back at {down:.3f} s of simulated time')
+        assert down - up == pytest.approx(0.45, abs=0.02)
     finally:
         ex.shutdown()
         node.destroy_node()
-        for p in procs:
+        for p in procs[::-1]:
             p.send_signal(signal.SIGINT)
-            p.communicate(timeout=20)
-            assert p.returncode == 0
+            _, err = p.communicate(timeout=20)
+            assert p.returncode == 0, err[-2000:]

@@ -183,6 +183,9 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
     event comes (a sim-time timer whose ``/clock`` has stopped).
     """
     def interrupt(*_):
+        # once: a second signal during the orderly shutdown below must not cut it short
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         raise KeyboardInterrupt
     signal.signal(signal.SIGTERM, interrupt)
     signal.signal(signal.SIGINT, interrupt)

@@ -2,7 +2,8 @@
 
 Both read a scenario (:mod:`servovalve_twin.physics.scenario`) and publish its values at the
 scenario time. Alone, a timer with period ``control_period`` drives them on the node clock (wall
-time, or ``/clock`` when ``use_sim_time`` is true), scenario time counting from the first tick;
+time, or ``/clock`` when ``use_sim_time`` is true), scenario time counting from the first tick
+with a valid time (with ``use_sim_time``, nothing is published before the first ``/clock``);
 after the scenario's end the last values are held. Inside ``twin`` the orchestrator calls
 :meth:`ScheduleSource.step` once per tick instead (no timer), which is what makes the lockstep
 deterministic.
@@ -66,6 +67,8 @@ class ScheduleSource(TwinNode):
 
     def _on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
+        if now == 0:
+            return          # use_sim_time and no /clock received yet: time is not valid
         if self._t0_ns is None or now < self._t0_ns:     # first tick, or sim time reset
             self._t0_ns = now
         self.step(now - self._t0_ns)
