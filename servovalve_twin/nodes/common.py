@@ -177,28 +177,27 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
     end it cleanly; bad parameters at start-up are one line and exit code 2.
 
     rclpy's own signal handler shuts the context down under the executor, which then fails to
-    build its wait set (a race seen with SIGTERM); both signals instead raise
-    KeyboardInterrupt in the spinning thread, and the ``finally`` below shuts down in order.
-    The executor waits at most 0.1 s at a time so that the Python handler runs even when no
-    event comes (a sim-time timer whose ``/clock`` has stopped).
+    build its wait set (a race seen with SIGTERM), and an exception raised by a Python handler
+    inside a callback surfaces from pybind11 as a RuntimeError. So both signals only set a flag;
+    the executor waits at most 0.1 s at a time (a sim-time timer whose ``/clock`` stopped never
+    fires), sees it and leaves, and the ``finally`` below shuts down in order.
     """
-    def interrupt(*_):
-        # once: a second signal during the orderly shutdown below must not cut it short
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        raise KeyboardInterrupt
-    signal.signal(signal.SIGTERM, interrupt)
-    signal.signal(signal.SIGINT, interrupt)
+    stop = []
+
+    def request_stop(*_):
+        stop.append(True)
+    signal.signal(signal.SIGTERM, request_stop)
+    signal.signal(signal.SIGINT, request_stop)
     rclpy.init(args=list(args) if args is not None else sys.argv,
                signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node = executor = None
     try:
         node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while rclpy.ok():
+        while rclpy.ok() and not stop:
             executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
     except (TwinError, ParameterError) as exc:
         print(f'error: {exc}', file=sys.stderr)
@@ -207,6 +206,8 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
         print(f'error: {exc}', file=sys.stderr)
         return 2
     finally:
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
