@@ -35,6 +35,7 @@ setup(
             'ecu = servovalve_twin.nodes.ecu:main',
             'plant = servovalve_twin.nodes.plant:main',
             'clock = servovalve_twin.nodes.clock:main',
+            'monitor = servovalve_twin.nodes.monitor:main',
             'twin = servovalve_twin.twin:main',
             'replay = servovalve_twin.bag.replay:main',
         ],

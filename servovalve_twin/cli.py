@@ -115,6 +115,14 @@ def cmd_params(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_faults(args: argparse.Namespace) -> int:
+    from .physics.faults import FAULTS
+    for f in FAULTS.values():
+        print(f'{f.name:24s} {f.param:10s} [{f.lo:g}, {f.hi:g}] {f.unit:18s} alarm at '
+              f'{f.demo:g}: {f.meaning}')
+    return 0
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from .report import make_report
     text = make_report(out_dir=Path(args.out_dir), readme=Path(args.readme) if args.readme
@@ -155,6 +163,7 @@ def _run(args: argparse.Namespace) -> int:
     result = run_twin(args.valve_model, scenario, _overrides(args),
                       control_period=args.control_period, bag=bag, overwrite=args.overwrite,
                       keep_values=args.out is not None, clock_period=args.clock_period,
+                      monitor=args.monitor,
                       on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
                       if args.progress else None)
     if args.out:
@@ -230,6 +239,67 @@ def cmd_reindex(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_faults(items: list[str]) -> tuple[dict[str, list[float]], dict[str, tuple]]:
+    grid: dict[str, list[float]] = {}
+    ranges: dict[str, tuple[float, float]] = {}
+    for item in items:
+        name, sep, spec = item.partition(':')
+        try:
+            if not sep:
+                raise ValueError
+            if '~' in spec:
+                lo, hi = (float(v) for v in spec.split('~'))
+                ranges[name] = (lo, hi)
+            else:
+                grid[name] = [float(v) for v in spec.split(',') if v.strip()]
+        except ValueError:
+            raise TwinError(f'--fault expects NAME:S1,S2,... (grid) or NAME:LO~HI (with '
+                            f'--draws), got {item!r}') from None
+    return grid, ranges
+
+
+def _parse_vary(items: list[str]) -> dict[str, float]:
+    out = {}
+    for item in items:
+        name, sep, value = item.partition('=')
+        try:
+            if not sep:
+                raise ValueError
+            out[name] = float(value)
+            if not 0.0 <= out[name] < 1.0:
+                raise ValueError
+        except ValueError:
+            raise TwinError(f'--vary expects PARAM=SPREAD with 0 <= SPREAD < 1, got {item!r}'
+                            ) from None
+    return out
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    import time
+    from .sweep import make_cases, run_cases, write_dataset
+    grid, ranges = _parse_faults(args.fault)
+    if ranges and not args.draws:
+        raise TwinError('a fault range NAME:LO~HI needs --draws N')
+    cases = make_cases(plant_model=args.plant_model, monitor_model=args.monitor_model,
+                       scenario=args.scenario, faults=grid, ranges=ranges, draws=args.draws,
+                       nominal_runs=args.nominal, repeats=args.repeats,
+                       vary=_parse_vary(args.vary), onset=args.onset, seed=args.seed,
+                       base=_overrides(args))
+    t0 = time.perf_counter()
+    results = run_cases(cases, workers=args.workers, scheduler=args.scheduler)
+    wall = time.perf_counter() - t0
+    summary = write_dataset(Path(args.out), results)
+    print(f'{len(cases)} runs in {wall:.1f} s ({len(cases) / wall:.1f} runs/s) -> {args.out}/'
+          '{dataset.csv, traces.npz, summary.json, signature.png}')
+    print(f'false alarms on nominal runs: {summary["false_alarms"]}/{summary["nominal_runs"]}')
+    for fault, rows in summary['faults'].items():
+        for r in rows:
+            delay = f'{r["mean_delay"] * 1e3:.0f} ms' if r['mean_delay'] is not None else '-'
+            print(f'{fault:24s} severity {r["severity"]:<10g} detected {r["detection_rate"]:.0%}'
+                  f' of {r["runs"]}, mean delay {delay}')
+    return 0
+
+
 # -- parser ---------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
@@ -281,6 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--overwrite', action='store_true', help='replace an existing bag')
     p.add_argument('--out', metavar='FILE.csv', help="the CSV of simulate, from the run's "
                                                     'own messages')
+    p.add_argument('--monitor', metavar='MODEL',
+                   help='run the monitor node beside the plant with this simplified model')
     p.add_argument('--progress', action='store_true',
                    help="print 'flushed up to T s' each time the bag is flushed (50 ms)")
     p.add_argument('--discoverable', action='store_true',
@@ -305,6 +377,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', metavar='DIR', help='new bag (default BAG_replay_<model>)')
     _add_param_options(p)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser('sweep', help='fault sweeps (grid or Monte-Carlo) with a monitor model: '
+                                     'a labelled dataset for prognostics')
+    p.add_argument('--plant-model', default='HD', metavar='NAME')
+    p.add_argument('--monitor-model', default='C2', metavar='NAME')
+    p.add_argument('--scenario', default='paper', metavar='paper|FILE.yaml')
+    p.add_argument('--fault', action='append', default=[], metavar='NAME:S1,S2|NAME:LO~HI',
+                   help='fault and severities (repeatable); `servovalve-twin faults` lists them')
+    p.add_argument('--draws', type=int, default=0, help='Monte-Carlo runs per fault range')
+    p.add_argument('--repeats', type=int, default=1, help='runs per grid severity')
+    p.add_argument('--nominal', type=int, default=5, help='fault-free runs (default 5)')
+    p.add_argument('--vary', action='append', default=[], metavar='PARAM=SPREAD',
+                   help='draw PARAM uniformly within +-SPREAD (relative) in every run')
+    p.add_argument('--onset', type=float, default=0.1, help='fault onset [s] (default 0.1)')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--workers', type=int, help='local processes (default: one per core)')
+    p.add_argument('--scheduler', metavar='ADDRESS', help='run on this Dask scheduler')
+    _add_param_options(p)
+    p.add_argument('--out', required=True, metavar='DIR')
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser('faults', help='list the injectable faults')
+    p.set_defaults(func=cmd_faults)
 
     p = sub.add_parser('reindex', help='rebuild a bag (and metadata.yaml) cut short by a kill')
     p.add_argument('bag', metavar='BAG')

@@ -46,6 +46,7 @@ from .errors import ModelError, TwinError
 from .nodes.clock import clock_msg
 from .nodes.common import QOS, TOPICS
 from .nodes.ecu import ECU_PARAMS, Ecu
+from .nodes.monitor import MONITOR_TOPICS, Monitor
 from .nodes.plant import Plant
 from .nodes.sources import CommandGenerator, Scheduler
 from .physics.params import PARAM_NAMES, EhaParams
@@ -88,14 +89,14 @@ class Recorder:
     writes as the CSV of the ROS run's own messages."""
 
     def __init__(self, writer: BagWriter | None, *, keep_values: bool,
-                 flush_ns: int = 50_000_000):
+                 flush_ns: int = 50_000_000, topics: dict | None = None):
         self.writer = writer
         self.keep_values = keep_values
         self.now_ns = 0
         self.flush_ns = flush_ns
         self._flushed_ns = 0
         self.on_flush: Callable[[float], None] | None = None   # called with the flushed time
-        self.types = {f'/{t}': _type_name(spec[0]) for t, spec in TOPICS.items()}
+        self.types = {f'/{t}': _type_name(spec[0]) for t, spec in (topics or TOPICS).items()}
         self.types['/clock'] = 'rosgraph_msgs/msg/Clock'
         self.encoders = {topic: ENCODERS[tn] for topic, tn in self.types.items()}
         float_topics = [t for t, tn in self.types.items() if tn == 'std_msgs/msg/Float64']
@@ -187,7 +188,8 @@ class Twin:
                  domain_id: int | None = None, overwrite: bool = False,
                  clock_period: float = 1e-2, executor: str = 'events',
                  base_params: EhaParams | None = None,
-                 on_flush: Callable[[float], None] | None = None):
+                 on_flush: Callable[[float], None] | None = None,
+                 monitor: str | None = None):
         get_valve_model(valve_model)
         self.scenario = load_scenario(scenario)
         self.params = effective_params(self.scenario, overrides, base_params)
@@ -231,12 +233,22 @@ class Twin:
                 + physical)
             self.clock = Node('twin_clock', **kw, parameter_overrides=[sim])
             self.clock_pub = self.clock.create_publisher(Clock, '/clock', 10)
-            self.recorder = Recorder(self.writer, keep_values=keep_values)
+            self.monitor = None
+            topics = dict(TOPICS)
+            if monitor is not None:
+                self.monitor = Monitor(lockstep=True, params=self.params, **kw,
+                                       parameter_overrides=[
+                                           sim, period, Parameter('monitor_model',
+                                                                  Parameter.Type.STRING,
+                                                                  monitor)] + physical)
+                topics.update(MONITOR_TOPICS)
+            self.recorder = Recorder(self.writer, keep_values=keep_values, topics=topics)
             self.recorder.on_flush = on_flush
             self.nodes = [self.command_generator, self.scheduler, self.ecu, self.plant,
-                          self.clock]
-            for n in self.nodes[:4]:
-                n.tap = self.recorder.record
+                          self.clock] + ([self.monitor] if self.monitor else [])
+            for n in self.nodes:
+                if n is not self.clock:
+                    n.tap = self.recorder.record
             if executor not in EXECUTORS:
                 raise TwinError(f'unknown executor {executor!r}; expected one of '
                                 f'{sorted(EXECUTORS)}')
@@ -247,6 +259,8 @@ class Twin:
             self.close()
             raise
         self.plant.plant.compile()
+        if self.monitor is not None:
+            self.monitor.model.compile()
         if self.writer is not None:
             self.writer.add_metadata('servovalve_twin', provenance(
                 valve_model, self.scenario, self.params, control_period))
@@ -262,6 +276,7 @@ class Twin:
         # the whole schedule, evaluated once: the same values simulate() samples
         com, fr, psr = (a.tolist() for a in self.scenario.inputs(
             np.arange(n_ticks + 1, dtype=np.int64) * self.period_ns))
+        faults = self._fault_ticks()
         wall = time.perf_counter()
         k = -1
         for k in range(n_ticks + 1):
@@ -274,14 +289,20 @@ class Twin:
                 msg = clock_msg(t_ns)
                 self.recorder.record('/clock', msg)
                 self.clock_pub.publish(msg)
+            if k in faults:
+                self._inject(faults[k], t_ns)
+            if self.monitor is not None:
+                self.monitor.begin_tick(t_ns, integrate=k < n_ticks)
             self.plant.begin_tick(t_ns, integrate=k < n_ticks)
             self.command_generator.publish_values({'com': com[k]})
             self.scheduler.publish_values({'fr': fr[k], 'psr': psr[k]})
-            self._spin_until(lambda: self.plant.done >= k, k)
+            self._spin_until(lambda: self.plant.done >= k and (
+                self.monitor is None or self.monitor.done >= k), k)
             self.recorder.tick_done()
             if on_tick is not None:
                 on_tick(k, self)
-            if self.plant.pending() or self.ecu.pending():
+            if self.plant.pending() or self.ecu.pending() or (
+                    self.monitor is not None and self.monitor.pending()):
                 raise TwinError(f'tick {k}: more inputs than the lockstep published -- another '
                                 f'graph is publishing the same topics on ROS_DOMAIN_ID='
                                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}; give each run its own '
@@ -296,6 +317,23 @@ class Twin:
         if self.recorder.keep_values:
             result.signals = self._signals()
         return result
+
+    def _fault_ticks(self) -> dict[int, list]:
+        """Scheduled fault events by the first tick starting at or after their time."""
+        out: dict[int, list] = {}
+        for e in self.scenario.fault_events(self.params):
+            k = -(-int(round(e.at * 1e9)) // self.period_ns)
+            out.setdefault(k, []).append(e)
+        return out
+
+    def _inject(self, events: list, t_ns: int) -> None:
+        """Apply fault events through the plant's parameters, as ``ros2 param set`` would."""
+        params = [_ros_param_value(e.param, e.value) for e in events]
+        for e, result in zip(events, self.plant.set_parameters(params)):
+            if not result.successful:
+                raise TwinError(f'fault {e.label} at {t_ns * 1e-9:.3f} s refused: '
+                                f'{result.reason}')
+            self.plant.get_logger().info(f'fault injected at {t_ns * 1e-9:.3f} s: {e.label}')
 
     def _spin_until(self, done, k: int) -> None:
         deadline = time.monotonic() + TICK_DEADLINE_S
@@ -349,7 +387,10 @@ class Twin:
 
 
 def _ros_param(name: str, params: EhaParams) -> Parameter:
-    value = params.value(name)
+    return _ros_param_value(name, params.value(name))
+
+
+def _ros_param_value(name: str, value: Any) -> Parameter:
     if isinstance(value, bool):
         return Parameter(name, Parameter.Type.BOOL, value)
     if isinstance(value, int):
@@ -393,8 +434,9 @@ def main(args: Sequence[str] | None = None) -> int:
     from rclpy.utilities import remove_ros_args
     argv = list(sys.argv if args is None else args)
     if remove_ros_args(argv)[1:]:
-        print(f'usage: twin --ros-args -p valve_model:=NAME -p scenario:=NAME|FILE '
-              f'-p control_period:=S -p bag:=DIR [-p PARAM:=VALUE ...]', file=sys.stderr)
+        print('usage: twin --ros-args -p valve_model:=NAME -p scenario:=NAME|FILE '
+              '-p control_period:=S -p bag:=DIR [-p monitor:=C2] [-p PARAM:=VALUE ...]',
+              file=sys.stderr)
         return 2
     context = Context()
     rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -408,6 +450,7 @@ def main(args: Sequence[str] | None = None) -> int:
     scenario = values.pop('scenario', 'paper')
     period = float(values.pop('control_period', 1e-3))
     bag = values.pop('bag', '')
+    monitor = values.pop('monitor', '') or None
     for builtin in ('use_sim_time', 'start_type_description_service'):
         values.pop(builtin, None)                 # declared by every rclpy node
     overrides = {k: v for k, v in values.items() if k in PARAM_NAMES}
@@ -416,7 +459,7 @@ def main(args: Sequence[str] | None = None) -> int:
         if unknown:
             raise TwinError(f'unknown parameter {unknown[0]!r}')
         result = run_twin(valve_model, scenario, overrides, control_period=period,
-                          bag=bag or None, context=context, keep_values=False)
+                          bag=bag or None, context=context, keep_values=False, monitor=monitor)
     except TwinError as exc:
         print(f'twin: error: {exc}', file=sys.stderr)
         return 2

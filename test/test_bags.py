@@ -66,6 +66,15 @@ def test_encoders_equal_raw_wire_bytes(ros_context):
     other.velocity = []
     other.effort = [0.5]
     msgs['other'] = (JointState, other, cdr.encode_joint_state)
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    diag = DiagnosticArray()
+    diag.header.stamp.sec = 7
+    st = DiagnosticStatus()
+    st.level = DiagnosticStatus.ERROR
+    st.name, st.message, st.hardware_id = 'servovalve_twin: EHA monitor', 'ERROR: xj', 'eha'
+    st.values = [KeyValue(key='residual_xj', value='0.0123'), KeyValue(key='k', value='')]
+    diag.status = [st, DiagnosticStatus()]
+    msgs['diag'] = (DiagnosticArray, diag, cdr.encode_diagnostic_array)
     pubs = {}
     for key, (typ, msg, _) in msgs.items():
         node.create_subscription(typ, f'probe_{key}', lambda data, k=key: got.setdefault(k, data),

@@ -167,3 +167,39 @@ def test_bad_twin_configuration_is_an_error(ros_context):
         Twin('X', SHORT, context=ros_context)
     with pytest.raises(TwinError, match='must divide the 1 ms'):
         Twin('C2', SHORT, context=ros_context, control_period=3e-3)
+
+
+def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_path):
+    """With a fault scheduled in the scenario: the twin (plant HD + monitor C2) equals simulate,
+    its residuals and health equal the ROS-free monitor, /diagnostics goes OK -> ERROR."""
+    from servovalve_twin.bag.reader import read_bag
+    from servovalve_twin.physics.monitor import monitor_run
+    from servovalve_twin.physics.scenario import load_scenario
+    raw = load_scenario('paper').to_dict()
+    raw['faults'] = [{'at': 0.2, 'fault': 'leakage_growth', 'severity': 10.0}]
+    with Twin('HD', raw, context=ros_context, monitor='C2', bag=tmp_path / 'm') as twin:
+        result = twin.run()
+        t_res, res = twin.recorder.values('monitor/residual_xj')
+        t_h, health = twin.recorder.values('monitor/health_p12')
+        r = twin.monitor.set_parameters([Parameter('monitor_model', value='HD')])[0]
+        assert not r.successful and 'simplified' in r.reason
+    ref = simulate('HD', raw, ecu_period=1e-3)
+    assert np.max(np.abs(result.signals['xj'] - ref['xj'])) == 0.0
+    mon = monitor_run(ref, 'C2')
+    on_grid = np.array(t_res) % 1_000_000 == 0
+    np.testing.assert_array_equal(np.array(res)[on_grid], mon.residuals['xj'])
+    # running sums of squares (node) against cumulative sums (arrays): equal up to rounding
+    np.testing.assert_allclose(np.array(health)[on_grid], mon.indicators['p12'], rtol=1e-6,
+                               atol=1e-3)
+    from rosbags.highlevel import AnyReader
+    with AnyReader([tmp_path / 'm']) as reader:
+        conns = [c for c in reader.connections if c.topic == '/diagnostics']
+        diag = [(t, reader.deserialize(raw_, c.msgtype).status[0])
+                for c, t, raw_ in reader.messages(connections=conns)]
+    levels = [s.level for _, s in diag]
+    first_error = next(t for t, s in diag if s.level == 2) * 1e-9
+    print(f'/diagnostics: {len(diag)} messages, first ERROR at {first_error:.3f} s '
+          f'(ROS-free monitor: {mon.first_alarm():.3f} s); {diag[-1][1].message}')
+    assert levels[0] == 0 and 2 in levels
+    assert first_error == pytest.approx(mon.first_alarm(), abs=1e-9)
+    assert read_bag(tmp_path / 'm').topics['/monitor/residual_dxj'] == 1001

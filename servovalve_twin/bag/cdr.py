@@ -81,7 +81,28 @@ def encode_joint_state_general(msg) -> bytes:
     return bytes(buf)
 
 
+def encode_diagnostic_array(msg) -> bytes:
+    buf = bytearray(_HEADER)
+    _time(buf, msg.header.stamp)
+    _string(buf, msg.header.frame_id)
+    _pad(buf, 4)
+    buf.extend(struct.pack('<I', len(msg.status)))
+    for st in msg.status:
+        level = st.level if isinstance(st.level, int) else st.level[0]
+        buf.extend(struct.pack('<B', level))
+        _string(buf, st.name)
+        _string(buf, st.message)
+        _string(buf, st.hardware_id)
+        _pad(buf, 4)
+        buf.extend(struct.pack('<I', len(st.values)))
+        for kv in st.values:
+            _string(buf, kv.key)
+            _string(buf, kv.value)
+    return bytes(buf)
+
+
 ENCODERS: dict[str, Callable[[Any], bytes]] = {
+    'diagnostic_msgs/msg/DiagnosticArray': encode_diagnostic_array,
     'std_msgs/msg/Float64': encode_float64,
     'rosgraph_msgs/msg/Clock': encode_clock,
     'sensor_msgs/msg/JointState': encode_joint_state,

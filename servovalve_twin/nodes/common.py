@@ -59,9 +59,11 @@ class TwinNode(Node):
         self._f64: dict[str, Float64] = {}
         self.tap: Callable[[str, Any], None] | None = None
 
-    def add_publishers(self, topics: Iterable[str]) -> None:
+    def add_publishers(self, topics: Iterable[str], table: dict | None = None) -> None:
+        """Publishers for ``topics``, typed from ``table`` (default :data:`TOPICS`)."""
+        table = TOPICS if table is None else table
         for t in topics:
-            self.pubs[t] = self.create_publisher(TOPICS[t][0], t, QOS)
+            self.pubs[t] = self.create_publisher(table[t][0], t, QOS)
 
     def emit(self, topic: str, msg: Any) -> None:
         if self.tap is not None:

@@ -41,6 +41,9 @@ class EhaParams:
                      group='supply')
     CLk: float = _p(2.0e-13, 'm^3/(s*Pa)', 0.0, 1.0e-9,
                     'port-to-port leakage coefficient, QLk = CLk*P12', group='supply')
+    PSR_scale: float = _p(1.0, '-', 0.0, 1.0, 'fraction of the scheduled PSR that reaches the '
+                          'valve (1 = healthy; the supply_loss fault lowers it)', lo_open=True,
+                          group='supply')
     # jack
     AJ: float = _p(7.05e-4, 'm^2', 1.0e-6, 1.0, 'jack piston area', lo_open=True, group='jack')
     M: float = _p(500.0, 'kg', 1.0e-3, 1.0e6, 'equivalent moving mass', group='jack')

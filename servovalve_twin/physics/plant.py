@@ -36,11 +36,12 @@ def plant_step(valve_fn, s, vs, P, cor, fr, psr, integrate):
     :param s: plant state (:mod:`.servovalve` layout), updated in place
     :param vs: valve state (:mod:`.valve_state` layout), updated in place
     :param cor: servovalve current [A], held over the step
-    :param fr: external load [N], held; :param psr: supply-return pressure [Pa], held
+    :param fr: external load [N], held; :param psr: scheduled supply-return pressure [Pa], held;
+        the valve sees ``PSR_scale`` of it (1 unless the supply_loss fault is injected)
     """
     qj = P.AJ * s[S_DXJ]
     vs[V_XJ] = s[S_XJ]
-    p12 = valve_fn(s[S_XS], qj, psr, P, vs)
+    p12 = valve_fn(s[S_XS], qj, psr * P.PSR_scale, P, vs)
     if integrate:
         jack_step(s, p12, fr, P)
         servovalve_step(s, cor, P)
@@ -48,20 +49,21 @@ def plant_step(valve_fn, s, vs, P, cor, fr, psr, integrate):
 
 
 @njit
-def run_steps(valve_fn, s, vs, P_arr, com, fr, psr, ecu_every, out_every, out):
+def run_steps(valve_fn, s, vs, P_arr, seg, com, fr, psr, ecu_every, out_every, out):
     """Run ``len(com) - 1`` steps; the last input sample is the end instant, evaluated without
     integrating so that the last output row holds P12 at the end time.
 
     ``ecu_every`` = 0 evaluates the ECU every step (continuous); n > 0 samples it every n steps
     and holds Cor in between. Every ``out_every`` steps a row of :data:`OUT_COLUMNS` is written.
-    ``P_arr`` is :meth:`~.params.EhaParams.kernel_array`. Returns -1, or the index of the step at
-    which the valve model failed.
+    ``P_arr`` stacks :meth:`~.params.EhaParams.kernel_array` rows, one per parameter segment
+    (faults change parameters mid-run); ``seg[i]`` is the row in force on step i. Returns -1, or
+    the index of the step at which the valve model failed.
     """
-    P = P_arr[0]
     n = com.shape[0] - 1
     row = 0
     cor = 0.0
     for i in range(n + 1):
+        P = P_arr[seg[i]]
         if ecu_every == 0 or i % ecu_every == 0:
             cor = ecu_current(com[i], s[S_XJ], P)
         xs = s[S_XS]

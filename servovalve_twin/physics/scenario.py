@@ -32,7 +32,7 @@ from ..errors import ScenarioError
 SIGNALS = ('com', 'fr', 'psr')
 SIGNAL_UNITS = {'com': 'm', 'fr': 'N', 'psr': 'Pa'}
 _DEFAULT_VALUE = {'com': 0.0, 'fr': 0.0, 'psr': 20.0e6}
-_KEYS = {'name', 'description', 'duration', 'params', 'windows'} | set(SIGNALS)
+_KEYS = {'name', 'description', 'duration', 'params', 'windows', 'faults'} | set(SIGNALS)
 _SINE_KEYS = {'offset', 'amplitude', 'frequency', 'phase', 'start'}
 _MAX_DURATION = 3600.0
 
@@ -108,6 +108,15 @@ class Scenario:
     params: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     windows: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     description: str = ''
+    faults: tuple[Mapping[str, Any], ...] = ()      # raw fault entries, see physics.faults
+
+    def fault_events(self, nominal) -> list:
+        """The scheduled faults resolved against ``nominal`` parameters (sorted by time)."""
+        from .faults import events_from_raw
+        return events_from_raw(self.faults, nominal, self.duration)
+
+    def without_faults(self) -> 'Scenario':
+        return dataclasses.replace(self, faults=())
 
     @property
     def duration_ns(self) -> int:
@@ -134,6 +143,8 @@ class Scenario:
             out['params'] = dict(self.params)
         if self.windows:
             out['windows'] = {k: list(v) for k, v in self.windows.items()}
+        if self.faults:
+            out['faults'] = [dict(f) for f in self.faults]
         return out
 
 
@@ -218,8 +229,16 @@ def scenario_from_dict(raw: Mapping[str, Any], name: str = 'scenario') -> Scenar
             raise ScenarioError(f'scenario.windows.{wname}: need 0 <= t0 < t1 <= duration, '
                                 f'got [{t0}, {t1}]')
         windows[str(wname)] = (t0, t1)
-    return Scenario(name=str(raw.get('name', name)), duration=duration, params=params,
-                    windows=windows, description=str(raw.get('description', '')), **profiles)
+    faults = raw.get('faults') or []
+    if not isinstance(faults, (list, tuple)):
+        raise ScenarioError('scenario.faults: expected a list of {at, fault, severity} or '
+                            '{at, param, value} entries')
+    scenario = Scenario(name=str(raw.get('name', name)), duration=duration, params=params,
+                        windows=windows, description=str(raw.get('description', '')),
+                        faults=tuple(dict(f) if isinstance(f, Mapping) else f for f in faults),
+                        **profiles)
+    scenario.fault_events(make_params(params))          # validate now, with the defaults
+    return scenario
 
 
 def config_dir() -> Path:

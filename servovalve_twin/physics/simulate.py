@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import ModelError, ParameterError, TwinError
 from .ecu import ecu_current
+from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams
 from .plant import OUT_COLUMNS, TICK_OUT, run_steps, run_tick
 from .scenario import Scenario, load_scenario
@@ -135,13 +136,13 @@ def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
         raise ParameterError(f'duration {scn.duration} s is not a whole number of DT = {p.DT} s')
     t_ns = np.arange(n_steps + 1, dtype=np.int64) * p.dt_ns
     com, fr, psr = scn.inputs(t_ns)
+    kernels, seg = _fault_segments(scn, p, t_ns)
     n_rows = n_steps // out_every + 1
     out = np.full((n_rows, len(OUT_COLUMNS)), np.nan)
     s = np.zeros(S_SIZE)
     vs = model.initial_state(p)
     wall = time.perf_counter()
-    failed = run_steps(model.fn, s, vs, p.kernel_array(), com, fr, psr, ecu_every, out_every,
-                       out)
+    failed = run_steps(model.fn, s, vs, kernels, seg, com, fr, psr, ecu_every, out_every, out)
     wall = time.perf_counter() - wall
     if failed >= 0:
         raise ModelError(f'valve model {model.name} failed to converge at t = '
@@ -152,6 +153,18 @@ def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
     return RunResult(valve_model=model.name, scenario=scn, params=p, signals=signals,
                      ecu_period=ecu_period, info=dict(_diagnostics(model, vs), steps=n_steps,
                                                       wall_s=wall))
+
+
+def _fault_segments(scn: Scenario, p: EhaParams, t_ns: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Stacked kernel parameters, one row per stretch between fault events, and the row in
+    force on each step (an event applies from the first step starting at or after it)."""
+    events = scn.fault_events(p)
+    times = sorted({int(round(e.at * 1e9)) for e in events})
+    rows = [p.kernel_array()] + [fault_params(events, p, t * 1e-9).kernel_array()
+                                 for t in times]
+    seg = np.searchsorted(np.array(times, dtype=np.int64), t_ns, side='right').astype(np.int64)
+    return np.concatenate(rows), seg
 
 
 def _diagnostics(model: ValveModel, vs: np.ndarray) -> dict[str, Any]:

@@ -1,0 +1,180 @@
+"""The monitor node: a simplified EHA model beside the plant, residuals and a health level.
+
+It runs its own copy of the actuator -- ECU law, servovalve, the chosen simplified valve model
+(default C2), jack -- with the *nominal* parameters, on the same Com, FR and PSR as the plant,
+and compares it with what the plant publishes (:mod:`servovalve_twin.physics.monitor`).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64
+
+from ..physics.monitor import LEVEL_NAMES, RESIDUALS, HealthConfig, HealthFilter
+from ..physics.simulate import EhaPlant, steps_per
+from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
+from .common import (QOS, TwinNode, declare_physical, finite_or_none,
+                     physical_from_node, spin_standalone, validation_result, with_ros_values)
+
+INPUTS = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
+MONITOR_TOPICS = {
+    **{f'monitor/residual_{s}': (Float64, unit, 'monitor', f'plant - monitor model, {s.upper()}')
+       for s, unit in (('xj', 'm'), ('dxj', 'm/s'), ('p12', 'Pa'))},
+    **{f'monitor/health_{s}': (Float64, unit, 'monitor',
+                               f'moving RMS of the {s.upper()} residual')
+       for s, unit in (('xj', 'm'), ('dxj', 'm/s'), ('p12', 'Pa'))},
+    'diagnostics': (DiagnosticArray, '-', 'monitor',
+                    "status 'servovalve_twin: EHA monitor', level OK/WARN/ERROR, residuals"),
+}
+_HEALTH_DOC = {'window': 'moving-RMS window [s]'}
+
+
+class Monitor(TwinNode):
+    """Monitor model beside the plant.
+
+    Subscribes: ``com``, ``fr``, ``psr`` (the plant's inputs), ``xj``, ``dxj``, ``p12`` (the
+    plant's outputs), all std_msgs/Float64.
+    Publishes: ``monitor/residual_{xj,dxj,p12}`` and ``monitor/health_{xj,dxj,p12}``
+    (std_msgs/Float64, m, m/s, Pa: residual plant - model, and its moving RMS) every control
+    period; ``diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period`` and
+    at once when the level changes.
+    Parameters: ``monitor_model`` (string, a simplified model; default C2), ``window`` and
+    ``warn_*``/``error_*`` thresholds (double, SI; defaults per model,
+    :meth:`HealthConfig.for_model`), ``diagnostics_period`` (s), ``control_period`` (s,
+    read-only) and the nominal physical parameters (as the plant's).
+    """
+
+    def __init__(self, *, lockstep: bool = False, params=None, **kwargs):
+        super().__init__('monitor', **kwargs)
+        names = [n for n in VALVE_MODEL_NAMES if n != 'HD']
+        self.declare_parameter('monitor_model', 'C2', ParameterDescriptor(
+            description='simplified valve model of the monitor',
+            additional_constraints='one of: ' + ', '.join(names)))
+        model = self.get_parameter('monitor_model').value
+        get_valve_model(model)
+        defaults = HealthConfig.for_model(model)
+        for field in ('window', 'warn_xj', 'error_xj', 'warn_dxj', 'error_dxj', 'warn_p12',
+                      'error_p12'):
+            self.declare_parameter(field, float(getattr(defaults, field)), ParameterDescriptor(
+                description=_HEALTH_DOC.get(field, f'{field.replace("_", " ")} threshold of '
+                                            'the residual moving RMS [SI]'),
+                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1e9,
+                                                         step=0.0)]))
+        self.declare_parameter('diagnostics_period', 0.01, ParameterDescriptor(
+            description='DiagnosticArray period [s] (and at every level change)'))
+        self.declare_parameter('control_period', 0.001, ParameterDescriptor(
+            description='control period [s]', read_only=True))
+        declare_physical(self)
+        base = physical_from_node(self) if params is None else params
+        self.model = EhaPlant(model, base)
+        self.period = self.get_parameter('control_period').value
+        self.n_sub = steps_per(self.period, base, 'control_period')
+        self.filter = HealthFilter(self._config(), self.period)
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._apply)
+        self.lockstep = lockstep
+        self.latest = {k: 0.0 for k in INPUTS}
+        self.latest['psr'] = base.PSRN
+        self._queues = {k: deque() for k in INPUTS}
+        self._ticks: deque[tuple[int, int]] = deque()
+        self.done = -1
+        self.level = 0
+        self._last_diag_ns: int | None = None
+        self.add_publishers(MONITOR_TOPICS, MONITOR_TOPICS)
+        for name in INPUTS:
+            self.create_subscription(Float64, name, lambda m, n=name: self._on_input(n, m), QOS)
+        if not lockstep:
+            self.create_timer(self.period, self._on_timer)
+
+    def _config(self) -> HealthConfig:
+        return HealthConfig(**{f: self.get_parameter(f).value for f in (
+            'window', 'warn_xj', 'error_xj', 'warn_dxj', 'error_dxj', 'warn_p12', 'error_p12')})
+
+    def _validate(self, params: list[Parameter]):
+        def check():
+            for p in params:
+                if p.name == 'monitor_model':
+                    if p.value == 'HD':
+                        from ..errors import ModelError
+                        raise ModelError('the monitor runs a simplified model; HD is the plant')
+                    get_valve_model(p.value)
+            with_ros_values(self.model.params, {p.name: p.value for p in params})
+        return validation_result(check)
+
+    def _apply(self, params: list[Parameter]) -> None:
+        changes = {p.name: p.value for p in params}
+        if 'monitor_model' in changes:
+            self.model.set_valve_model(changes['monitor_model'])
+        phys = with_ros_values(self.model.params, changes)
+        if phys is not self.model.params:
+            self.model.set_params(phys)
+        self.filter = HealthFilter(self._config(), self.period)
+
+    def _on_input(self, name: str, msg: Float64) -> None:
+        v = finite_or_none(msg.data, name, self)
+        if v is None:
+            return
+        self.latest[name] = v
+        if self.lockstep:
+            self._queues[name].append(v)
+            self._try_tick()
+
+    def begin_tick(self, t_ns: int, integrate: bool = True) -> None:
+        """Lockstep: expect one value of each input for the tick at ``t_ns``."""
+        self._ticks.append((t_ns, self.n_sub if integrate else 0))
+        self._try_tick()
+
+    def _try_tick(self) -> None:
+        if self._ticks and all(self._queues.values()):
+            t_ns, n_sub = self._ticks.popleft()
+            values = {k: self._queues[k].popleft() for k in INPUTS}
+            self._advance(t_ns, n_sub, values)
+            self.done += 1
+
+    def _advance(self, t_ns: int, n_sub: int, v: dict[str, float]) -> None:
+        # the monitor's own loop: its ECU sees its own XJ, as the real ECU sees the plant's
+        xj_m, dxj_m = self.model.xj, self.model.dxj
+        cor = self.model.control(v['com'], xj_m)
+        p12_m = float(self.model.tick(cor, v['fr'], v['psr'], n_sub)[0])
+        residual = {'xj': v['xj'] - xj_m, 'dxj': v['dxj'] - dxj_m, 'p12': v['p12'] - p12_m}
+        level, health = self.filter.update(residual)
+        for s in RESIDUALS:
+            self.emit_value(f'monitor/residual_{s}', residual[s])
+            self.emit_value(f'monitor/health_{s}', health[s])
+        period_ns = int(round(self.get_parameter('diagnostics_period').value * 1e9))
+        if (level != self.level or self._last_diag_ns is None
+                or t_ns - self._last_diag_ns >= period_ns):
+            self._publish_diagnostics(t_ns, level, residual, health)
+        self.level = level
+
+    def _publish_diagnostics(self, t_ns: int, level: int, residual, health) -> None:
+        self._last_diag_ns = t_ns
+        msg = DiagnosticArray()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, 1_000_000_000)
+        st = DiagnosticStatus()
+        st.level = bytes([level])
+        st.name = 'servovalve_twin: EHA monitor'
+        st.hardware_id = 'eha'
+        worst = max(RESIDUALS, key=lambda s: health[s] / self.filter.config.thresholds(s)[1])
+        st.message = (f'{LEVEL_NAMES[level]}: largest residual {worst.upper()} '
+                      f'(moving RMS {health[worst]:.4g} SI) against model '
+                      f'{self.model.model.name}')
+        st.values = [KeyValue(key=f'residual_{s}', value=repr(residual[s])) for s in RESIDUALS]
+        st.values += [KeyValue(key=f'health_{s}', value=repr(health[s])) for s in RESIDUALS]
+        msg.status = [st]
+        self.emit('diagnostics', msg)
+
+    def _on_timer(self) -> None:
+        self._advance(self.get_clock().now().nanoseconds, self.n_sub, dict(self.latest))
+
+    def pending(self) -> int:
+        return max(len(q) for q in self._queues.values())
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    return spin_standalone(Monitor, args)

@@ -1,0 +1,148 @@
+"""Fault injection: degradations of the EHA as parameter changes, named, documented, bounded.
+
+Each fault maps a *severity* to a parameter value computed from the nominal (fault-free)
+parameters, so that a severity means the same whatever else was changed. Faults enter a run
+as time-scheduled events of a scenario (``faults:``) or, on the ROS plant, as parameter sets at
+run time (``ros2 param set /plant CLk 2.0e-12``).
+
+Scenario schema::
+
+    faults:
+      - {at: 0.5, fault: leakage_growth, severity: 10.0}   # a named fault
+      - {at: 0.8, param: CorB, value: 0.0005}              # any parameter, set directly
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping, Sequence
+
+from ..errors import ScenarioError, TwinError
+from .params import EhaParams
+
+
+@dataclasses.dataclass(frozen=True)
+class FaultSpec:
+    """A named degradation: which parameter, how severity maps to it, its physical meaning."""
+
+    name: str
+    param: str
+    kind: str              # 'scale': param = nominal*severity; 'loss': nominal*(1 - severity);
+    #                        'value': param = severity
+    lo: float
+    hi: float
+    unit: str
+    meaning: str
+    demo: float            # the documented severity at which the monitor must raise an alarm
+
+    def value(self, nominal: EhaParams, severity: float) -> float:
+        if not self.lo <= severity <= self.hi:
+            raise TwinError(f'fault {self.name}: severity {severity!r} {self.unit} is out of '
+                            f'range; allowed [{self.lo:g}, {self.hi:g}]')
+        base = nominal.value(self.param)
+        if self.kind == 'scale':
+            return base * severity
+        if self.kind == 'loss':
+            return base * (1.0 - severity)
+        return float(severity)
+
+
+#: name -> fault. Severity 'scale' faults are multipliers (1 = healthy), 'loss' faults fractions
+#: lost (0 = healthy), 'value' faults the parameter itself.
+FAULTS: dict[str, FaultSpec] = {f.name: f for f in (
+    FaultSpec('leakage_growth', 'CLk', 'scale', 1.0, 100.0, 'x CLk',
+              'internal port-to-port leakage grows (worn spool lands, piston seal): less '
+              'stiffness under load, larger holding error', 10.0),
+    FaultSpec('supply_loss', 'PSR_scale', 'loss', 0.0, 0.9, 'fraction of PSR',
+              'the valve sees only (1 - severity) of the scheduled supply (pump wear, relief '
+              'valve leaking, clogged pressure filter): lower stall force, slower under load',
+              0.3),
+    FaultSpec('static_friction', 'FSJ', 'scale', 1.0, 50.0, 'x FSJ',
+              'break-away friction of the jack seals grows (seal wear, contamination): '
+              'stick-slip, dead band around the command', 20.0),
+    FaultSpec('dynamic_friction', 'FDJ', 'scale', 1.0, 50.0, 'x FDJ',
+              'running friction of the jack seals grows; FSJ is raised with it where it would '
+              'fall below FDJ', 15.0),
+    FaultSpec('torque_motor_gain_loss', 'GM', 'loss', 0.0, 0.9, 'fraction of GM',
+              'torque-motor gain drops (demagnetisation, coil turns shorted): smaller spool '
+              'opening per ampere, slower response', 0.7),
+    FaultSpec('null_bias', 'CorB', 'value', -5.0e-3, 5.0e-3, 'A',
+              'the valve null shifts (spring preload drift, nozzle erosion), a bias current '
+              'after the ECU saturation: a steady position error CorB/GAP of the proportional '
+              'loop', -5.0e-3),
+    FaultSpec('first_stage_flow_loss', 'GQF_AS', 'loss', 0.0, 0.95, 'fraction of GQF/AS',
+              'first-stage flow drops (filter or nozzle contamination): the spool moves '
+              'slower, the valve bandwidth falls', 0.9),
+    FaultSpec('clearance_growth', 'c', 'scale', 1.0, 5.0, 'x c',
+              'radial clearance of the spool grows (erosion); HD valve only: softer null, more '
+              'null leakage', 3.0),
+)}
+
+
+@dataclasses.dataclass(frozen=True)
+class FaultEvent:
+    """At simulated time ``at`` [s], set ``param`` to ``value`` (resolved from a fault)."""
+
+    at: float
+    param: str
+    value: Any
+    label: str          # 'leakage_growth=10' or 'CLk=2e-12', for datasets and logs
+
+
+def resolve(fault: str, severity: float, nominal: EhaParams) -> dict[str, Any]:
+    """Parameter values of ``fault`` at ``severity`` relative to ``nominal``."""
+    try:
+        spec = FAULTS[fault]
+    except KeyError:
+        raise TwinError(f'unknown fault {fault!r}; expected one of {sorted(FAULTS)}') from None
+    values = {spec.param: spec.value(nominal, float(severity))}
+    if spec.name == 'dynamic_friction' and values['FDJ'] > nominal.FSJ:
+        values['FSJ'] = values['FDJ']
+    return values
+
+
+def events_from_raw(raw: Sequence[Mapping[str, Any]] | None, nominal: EhaParams,
+                    duration: float) -> list[FaultEvent]:
+    """Validate a scenario's ``faults:`` list into events (sorted by time)."""
+    events: list[FaultEvent] = []
+    for i, item in enumerate(raw or []):
+        where = f'scenario.faults[{i}]'
+        if not isinstance(item, Mapping):
+            raise ScenarioError(f'{where}: expected a mapping with at and fault/severity or '
+                                'param/value')
+        keys = set(item)
+        try:
+            at = float(item.get('at', 0.0))
+        except (TypeError, ValueError):
+            raise ScenarioError(f'{where}.at: expected a time in s, got {item.get("at")!r}'
+                                ) from None
+        if not 0.0 <= at <= duration:
+            raise ScenarioError(f'{where}.at = {at} s lies outside [0, {duration}] s')
+        try:
+            if keys == {'at', 'fault', 'severity'}:
+                values = resolve(str(item['fault']), float(item['severity']), nominal)
+                label = f'{item["fault"]}={float(item["severity"]):g}'
+            elif keys == {'at', 'param', 'value'}:
+                values = {str(item['param']): item['value']}
+                nominal.replace(**values)
+                label = f'{item["param"]}={item["value"]}'
+            else:
+                raise ScenarioError(f'{where}: expected keys {{at, fault, severity}} or {{at, '
+                                    f'param, value}}, got {sorted(keys)}')
+        except (TypeError, ValueError, TwinError) as exc:
+            if isinstance(exc, ScenarioError):
+                raise
+            raise ScenarioError(f'{where}: {exc}') from None
+        for param, value in values.items():
+            events.append(FaultEvent(at=at, param=param, value=value, label=label))
+    return sorted(events, key=lambda e: e.at)
+
+
+def params_after(events: Sequence[FaultEvent], nominal: EhaParams, t: float) -> EhaParams:
+    """The parameters in force at time ``t`` (every event at or before ``t`` applied)."""
+    changes = {e.param: e.value for e in events if e.at <= t + 1e-12}
+    return nominal.replace(**changes) if changes else nominal
+
+
+def fault_table() -> list[dict[str, Any]]:
+    return [dataclasses.asdict(f) for f in FAULTS.values()]

@@ -1,0 +1,182 @@
+"""Prognostics workbench: fault injection, the monitor model, health levels, sweeps."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from servovalve_twin.cli import main
+from servovalve_twin.errors import ScenarioError, TwinError
+from servovalve_twin.physics.faults import FAULTS, resolve
+from servovalve_twin.physics.monitor import ERROR, OK, HealthConfig, monitor_run
+from servovalve_twin.physics.params import DEFAULTS
+from servovalve_twin.physics.scenario import load_scenario
+from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.sweep import Case, make_cases, run_case, run_cases, write_dataset
+from conftest import cached_run
+
+PAPER = load_scenario('paper').to_dict()
+
+
+def faulted(fault, severity, at=0.0, model='HD'):
+    return simulate(model, dict(PAPER, faults=[{'at': at, 'fault': fault,
+                                                'severity': severity}]), ecu_period=1e-3)
+
+
+def mean(r, a, b, sig):
+    return float(np.mean(r[sig][r.window(a, b)]))
+
+
+NOMINAL = {}
+
+
+def nominal():
+    if 'hd' not in NOMINAL:
+        NOMINAL['hd'] = simulate('HD', 'paper', ecu_period=1e-3)
+    return NOMINAL['hd']
+
+
+# fault -> (measure, expected direction): each fault moves what its physics says it moves
+EFFECTS = {
+    'leakage_growth': (lambda r: mean(r, 0.25, 0.30, 'xs'), +1),     # opening to hold the load
+    'supply_loss': (lambda r: r['dxj'][:200].max(), -1),              # unloaded top speed
+    'static_friction': (lambda r: mean(r, 0.30, 0.35, 'dxj'), -1),    # sticks against the load
+    'dynamic_friction': (lambda r: r['dxj'][:200].max(), -1),
+    'torque_motor_gain_loss': (lambda r: mean(r, 0.05, 0.051, 'xj'), -1),   # slower response
+    'null_bias': (lambda r: mean(r, 0.15, 0.20, 'xj'), -1),          # negative bias: offset
+    'first_stage_flow_loss': (lambda r: mean(r, 0.05, 0.051, 'xj'), -1),    # slower spool
+    'clearance_growth': (lambda r: mean(r, 0.25, 0.30, 'xs'), +1),    # leakier null
+}
+
+
+def test_every_fault_is_documented_and_tested():
+    assert set(EFFECTS) == set(FAULTS)
+    for f in FAULTS.values():
+        assert f.meaning and f.unit and f.lo <= f.demo <= f.hi
+
+
+@pytest.mark.parametrize('fault', sorted(FAULTS))
+def test_fault_effect_direction(fault):
+    measure, direction = EFFECTS[fault]
+    base, with_fault = measure(nominal()), measure(faulted(fault, FAULTS[fault].demo))
+    print(f'{fault} at {FAULTS[fault].demo:g}: {base:.6g} -> {with_fault:.6g}')
+    assert np.sign(with_fault - base) == direction
+    assert abs(with_fault - base) > 0.05 * max(abs(base), 1e-9)
+
+
+def test_null_bias_offset_is_the_proportional_loop_error():
+    r = faulted('null_bias', -5e-3)
+    offset = mean(nominal(), 0.15, 0.20, 'xj') - mean(r, 0.15, 0.20, 'xj')
+    assert offset == pytest.approx(5e-3 / DEFAULTS.GAP, rel=0.2)      # CorB/GAP = 2.96 mm
+
+
+def test_fault_severity_semantics_and_errors():
+    assert resolve('leakage_growth', 10, DEFAULTS) == {'CLk': pytest.approx(2e-12)}
+    assert resolve('supply_loss', 0.3, DEFAULTS) == {'PSR_scale': pytest.approx(0.7)}
+    assert resolve('torque_motor_gain_loss', 0.5, DEFAULTS) == {'GM': pytest.approx(7.5)}
+    assert resolve('dynamic_friction', 2.0, DEFAULTS) == {'FDJ': 400.0, 'FSJ': 400.0}
+    with pytest.raises(TwinError, match="unknown fault 'wear'"):
+        resolve('wear', 1.0, DEFAULTS)
+    with pytest.raises(TwinError, match='out of range'):
+        resolve('supply_loss', 1.5, DEFAULTS)
+    for bad, fragment in (([{'at': 0.5, 'fault': 'leakage_growth'}], 'expected keys'),
+                          ([{'at': 2.0, 'fault': 'leakage_growth', 'severity': 2}], 'outside'),
+                          ([{'at': 0.5, 'param': 'M', 'value': -1.0}], 'parameter M'),
+                          ([{'at': 0.5, 'fault': 'x', 'severity': 1}], "unknown fault 'x'")):
+        with pytest.raises(ScenarioError, match=fragment):
+            load_scenario(dict(PAPER, faults=bad))
+
+
+def test_fault_event_applies_from_its_time():
+    r = faulted('supply_loss', 0.5, at=0.5)
+    before = nominal()
+    w = r.window(0.0, 0.5)
+    np.testing.assert_array_equal(r['xj'][w], before['xj'][w])
+    assert np.max(np.abs(r['xj'] - before['xj'])) > 1e-3
+
+
+@pytest.mark.parametrize('model', ['C2', 'SQ'])
+def test_monitor_is_silent_on_the_nominal_paper_scenario(model):
+    m = monitor_run(nominal(), model)
+    peaks = {s: float(v.max()) for s, v in m.indicators.items()}
+    print(f'{model} monitor, healthy HD plant: peak indicators {peaks}')
+    assert m.level.max() == OK
+
+
+@pytest.mark.parametrize('fault', sorted(FAULTS))
+def test_monitor_alarms_on_each_fault_at_its_documented_severity(fault):
+    onset = 0.1
+    r = faulted(fault, FAULTS[fault].demo, at=onset)
+    m = monitor_run(r, 'C2', nominal=DEFAULTS)
+    alarm = m.first_alarm(ERROR)
+    print(f'{fault} = {FAULTS[fault].demo:g} from {onset} s: ERROR at {alarm} s '
+          f'(delay {None if alarm is None else round((alarm - onset) * 1e3)} ms)')
+    assert alarm is not None and alarm >= onset
+
+
+def test_health_filter_matches_the_array_assessment():
+    from servovalve_twin.physics.monitor import HealthFilter
+    m = monitor_run(faulted('leakage_growth', 10.0, at=0.1), 'C2', nominal=DEFAULTS)
+    f = HealthFilter(HealthConfig(), 1e-3)
+    levels = [f.update({s: m.residuals[s][i] for s in m.residuals})[0]
+              for i in range(len(m.t))]
+    np.testing.assert_array_equal(levels, m.level)
+
+
+def same_rows(a, b):
+    """Rows equal, NaN included (a missing delay is NaN in both)."""
+    return [json.dumps(r['row'], sort_keys=True) for r in a] == \
+        [json.dumps(r['row'], sort_keys=True) for r in b]
+
+
+def test_sweep_dataset(tmp_path):
+    cases = make_cases(faults={'leakage_growth': [5.0, 20.0], 'null_bias': [-5e-3]},
+                       nominal_runs=2, vary={'M': 0.1}, seed=3)
+    assert [c.fault for c in cases] == ['none', 'none', 'leakage_growth', 'leakage_growth',
+                                        'null_bias']
+    assert len({c.params['M'] for c in cases}) == 5
+    results = run_cases(cases, workers=2)
+    serial = [run_case(c) for c in cases[:2]]
+    assert same_rows(results[:2], serial)                      # deterministic, any executor
+    summary = write_dataset(tmp_path, results)
+    rows = list(csv.DictReader(open(tmp_path / 'dataset.csv')))
+    assert len(rows) == 5
+    for col in ('run_id', 'fault', 'severity', 'faulty', 'alarm', 'detection_delay',
+                'param_M', 'peak_rms_xj', 'peak_rms_p12', 'max_level'):
+        assert col in rows[0]
+    assert rows[3]['fault'] == 'leakage_growth' and float(rows[3]['severity']) == 20.0
+    traces = np.load(tmp_path / 'traces.npz')
+    assert traces['run3_res_xj'].shape == (1001,) and 'run0_level' in traces
+    assert json.loads((tmp_path / 'summary.json').read_text())['nominal_runs'] == 2
+    assert summary['false_alarms'] == 0
+    assert (tmp_path / 'signature.png').stat().st_size > 1000
+    print(summary)
+
+
+def test_monte_carlo_draws_and_cli(tmp_path, capsys):
+    cases = make_cases(ranges={'supply_loss': (0.1, 0.4)}, draws=4, nominal_runs=0, seed=1)
+    sev = [c.severity for c in cases]
+    assert len(sev) == 4 and all(0.1 <= s <= 0.4 for s in sev) and len(set(sev)) == 4
+    assert main(['sweep', '--fault', 'leakage_growth:20', '--nominal', '1', '--workers', '1',
+                 '--out', str(tmp_path / 's')]) == 0
+    out = capsys.readouterr().out
+    assert 'runs/s' in out and 'leakage_growth' in out
+    assert main(['sweep', '--fault', 'wear:1', '--out', str(tmp_path / 'x')]) == 2
+    assert main(['sweep', '--fault', 'supply_loss:0.1~0.2', '--out', str(tmp_path / 'x')]) == 2
+    assert "unknown fault 'wear'" in capsys.readouterr().err
+
+
+def test_sweep_on_a_dask_cluster(tmp_path):
+    distributed = pytest.importorskip('distributed')  # installed by requirements.txt
+    cases = make_cases(faults={'leakage_growth': [20.0]}, nominal_runs=1)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        results = run_cases(cases, scheduler=cluster.scheduler_address)
+    local = [run_case(c) for c in cases]
+    assert same_rows(results, local)
+
+
+def test_unreachable_dask_scheduler_is_a_clear_error():
+    with pytest.raises(TwinError, match='cannot reach the Dask scheduler'):
+        run_cases(make_cases(nominal_runs=1), scheduler='tcp://127.0.0.1:9')
