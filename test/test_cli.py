@@ -68,10 +68,16 @@ def test_characteristic(tmp_path):
 
 
 def test_calibrate_prints_the_gains(capsys):
-    assert main(['calibrate']) == 0
-    out = capsys.readouterr().out
-    for name in ('XSS', 'GPN', 'GQN', 'GPQ', 'k'):
-        assert f'{name} ' in out or f'{name}=' in out or out.count(name)
+    from servovalve_twin.physics.hd import calibrate
+    from servovalve_twin.physics.params import DEFAULTS
+    assert main(['calibrate', '--param', 'c=8e-6']) == 0
+    printed = {}
+    for line in capsys.readouterr().out.splitlines():
+        if '=' in line and not line.startswith('#'):
+            name, value = line.split('=', 1)
+            printed[name.strip()] = float(value.split()[0])
+    expected = calibrate(DEFAULTS.replace(c=8e-6))
+    assert printed == pytest.approx(expected, rel=1e-12)
 
 
 def test_console_script_exit_code():

@@ -45,6 +45,12 @@ def _time(buf: bytearray, stamp) -> None:
     buf.extend(struct.pack('<iI', stamp.sec, stamp.nanosec))
 
 
+def _std_header(buf: bytearray, header) -> None:
+    """std_msgs/Header: stamp, then frame_id."""
+    _time(buf, header.stamp)
+    _string(buf, header.frame_id)
+
+
 def encode_float64(msg) -> bytes:
     return _HEADER + _F64.pack(msg.data)
 
@@ -70,8 +76,7 @@ def encode_joint_state(msg) -> bytes:
 
 def encode_joint_state_general(msg) -> bytes:
     buf = bytearray(_HEADER)
-    _time(buf, msg.header.stamp)
-    _string(buf, msg.header.frame_id)
+    _std_header(buf, msg.header)
     _pad(buf, 4)
     buf.extend(struct.pack('<I', len(msg.name)))
     for name in msg.name:
@@ -83,8 +88,7 @@ def encode_joint_state_general(msg) -> bytes:
 
 def encode_diagnostic_array(msg) -> bytes:
     buf = bytearray(_HEADER)
-    _time(buf, msg.header.stamp)
-    _string(buf, msg.header.frame_id)
+    _std_header(buf, msg.header)
     _pad(buf, 4)
     buf.extend(struct.pack('<I', len(msg.status)))
     for st in msg.status:

@@ -161,9 +161,10 @@ class Monitor(TwinNode):
         st.name = 'servovalve_twin: EHA monitor'
         st.hardware_id = 'eha'
         worst = max(RESIDUALS, key=lambda s: health[s] / self.filter.config.thresholds(s)[1])
+        unit = {'xj': 'm', 'dxj': 'm/s', 'p12': 'Pa'}[worst]
         st.message = (f'{LEVEL_NAMES[level]}: largest residual {worst.upper()} '
-                      f'(moving RMS {health[worst]:.4g} SI) against model '
-                      f'{self.model.model.name}')
+                      f'(moving RMS {health[worst]:.4g} {unit}, relative to its ERROR '
+                      f'threshold) against model {self.model.model.name}')
         st.values = [KeyValue(key=f'residual_{s}', value=repr(residual[s])) for s in RESIDUALS]
         st.values += [KeyValue(key=f'health_{s}', value=repr(health[s])) for s in RESIDUALS]
         msg.status = [st]

@@ -10,7 +10,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 
-from ..errors import ModelError, TwinError
+from ..errors import ModelError
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
 from .common import (QOS, TwinNode, declare_physical, finite_or_none, joint_state,
@@ -142,5 +142,3 @@ class Plant(TwinNode):
 def main(args: Sequence[str] | None = None) -> int:
     return spin_standalone(Plant, args)
 
-
-__all__ = ['Plant', 'main', 'TwinError']

@@ -13,7 +13,7 @@ FA = AJ*P12 - FR - CJ*DXJ:
 
 from numba import njit
 
-from .servovalve import S_DXJ, S_XJ
+from .servovalve import S_DXJ, S_XJ, end_of_travel
 
 
 @njit(cache=True)
@@ -33,14 +33,6 @@ def jack_step(s, p12, fr, P):
         v_new = v + dt * (fa - ff) / P.M
         if v_new * v < 0.0:
             v_new = 0.0
-    x = s[S_XJ] + dt * v_new
-    if x > P.XJM:
-        x = P.XJM
-        if v_new > 0.0:
-            v_new = 0.0
-    elif x < -P.XJM:
-        x = -P.XJM
-        if v_new < 0.0:
-            v_new = 0.0
+    x, v_new = end_of_travel(s[S_XJ] + dt * v_new, v_new, P.XJM)
     s[S_XJ] = x
     s[S_DXJ] = v_new

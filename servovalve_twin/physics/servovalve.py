@@ -17,28 +17,28 @@ S_DXJ = 4     # jack velocity DXJ [m/s]
 S_SIZE = 5
 
 
+@njit(cache=True, inline='always')
+def end_of_travel(x, v, lim):
+    """Clamp a position to +-lim and zero the velocity pointing out of the stop, so that the
+    stage leaves the stop as soon as the net force reverses. Returns (x, v)."""
+    if x > lim:
+        return lim, (0.0 if v > 0.0 else v)
+    if x < -lim:
+        return -lim, (0.0 if v < 0.0 else v)
+    return x, v
+
+
 @njit(cache=True)
 def servovalve_step(s, cor, P):
-    """Advance flapper and spool by one DT (semi-implicit Euler: velocity first, then position).
-
-    An end of travel clamps the position and zeroes the velocity pointing outward, so the stage
-    leaves the stop as soon as the net force reverses.
-    """
+    """Advance flapper and spool by one DT (semi-implicit Euler: velocity first, then position),
+    both stages stopped at their ends of travel (:func:`end_of_travel`)."""
     dt = P.DT
     xf = s[S_XF]
     dxf = s[S_DXF]
     xs = s[S_XS]
     force = P.GM * (cor + P.CorB) - P.KFB * (xs + xf) - P.CF * dxf - P.KF * xf
     dxf += dt * force / P.MF
-    xf += dt * dxf
-    if xf > P.XFM:
-        xf = P.XFM
-        if dxf > 0.0:
-            dxf = 0.0
-    elif xf < -P.XFM:
-        xf = -P.XFM
-        if dxf < 0.0:
-            dxf = 0.0
+    xf, dxf = end_of_travel(xf + dt * dxf, dxf, P.XFM)
     xs += dt * P.GQF_AS * xf
     if xs > P.XSM:
         xs = P.XSM
