@@ -1,6 +1,8 @@
 """Launch the EHA twin's four nodes as separate processes sharing simulated time.
 
-    ros2 launch servovalve_twin twin.launch.py valve_model:=C4 scenario:=paper rate:=1.0
+    ros2 launch servovalve_twin twin.launch.py valve_model:=HD scenario:=paper rate:=1.0
+
+It also starts the monitor node (``monitor_model:=C2``) beside the plant.
 
 A ``clock`` process publishes ``/clock`` at ``rate`` simulated seconds per wall second; every
 node runs with ``use_sim_time`` and its own timer at ``control_period``. Across processes the
@@ -38,6 +40,8 @@ def generate_launch_description():
                               description='simulated seconds per wall second'),
         DeclareLaunchArgument('control_period', default_value='0.001',
                               description='control period [s] of every node'),
+        DeclareLaunchArgument('monitor_model', default_value='C2',
+                              description='simplified model of the monitor node'),
         Node(package='servovalve_twin', executable='clock', name='clock', output='screen',
              parameters=[{'rate': ParameterValue(rate, value_type=float),
                           'period': ParameterValue(period, value_type=float)}]),
@@ -50,4 +54,7 @@ def generate_launch_description():
              parameters=[eha, common]),
         Node(package='servovalve_twin', executable='plant', name='plant', output='screen',
              parameters=[eha, common, {'valve_model': valve_model}]),
+        Node(package='servovalve_twin', executable='monitor', name='monitor', output='screen',
+             parameters=[eha, common,
+                         {'monitor_model': LaunchConfiguration('monitor_model')}]),
     ])
