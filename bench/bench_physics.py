@@ -10,7 +10,6 @@ import platform
 import statistics
 import subprocess
 import sys
-import time
 
 CHILD = '''
 import sys, time, json

@@ -14,13 +14,13 @@ import json
 import statistics
 import subprocess
 import sys
-import tempfile
 
 CHILD = '''
 import json, sys, time, tempfile, os
 from servovalve_twin.twin import run_twin
 from servovalve_twin.physics.simulate import simulate
-model, bag, clock, executor, repeat = sys.argv[1], sys.argv[2] == '1', float(sys.argv[3]), sys.argv[4], int(sys.argv[5])
+model, bag, executor = sys.argv[1], sys.argv[2] == '1', sys.argv[4]
+clock, repeat = float(sys.argv[3]), int(sys.argv[5])
 tmp = tempfile.mkdtemp()
 def one(i):
     r = run_twin(model, 'paper', bag=os.path.join(tmp, f'b{i}') if bag else None,

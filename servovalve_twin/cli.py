@@ -101,7 +101,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     units = dict(XSS='m', GPN='Pa/m', GQN='m^2/s', GPQ='Pa*s/m^3', k='-')
     for name, value in cal.items():
         print(f'{name:4s} = {value!r:24s} [{units[name]}]')
-    print(f'# config/eha.yaml holds XSS and GPQ; set them with --param XSS=... --param GPQ=...')
+    print('# config/eha.yaml holds XSS and GPQ; set them with --param XSS=... --param GPQ=...')
     return 0
 
 

@@ -10,7 +10,6 @@ import re
 from pathlib import Path
 from typing import Any, Mapping
 
-import numpy as np
 
 from .compare import error_metrics, plot_overlay
 from .physics.characteristic import characteristic, plot_characteristic

@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import signal
-import struct
 import sys
 import time
 from pathlib import Path
@@ -42,9 +41,9 @@ from rosgraph_msgs.msg import Clock
 from . import __version__
 from .bag.cdr import ENCODERS
 from .bag.writer import BagWriter
-from .errors import ModelError, TwinError
+from .errors import TwinError
 from .nodes.clock import clock_msg
-from .nodes.common import QOS, TOPICS
+from .nodes.common import TOPICS
 from .nodes.ecu import ECU_PARAMS, Ecu
 from .nodes.monitor import MONITOR_TOPICS, Monitor
 from .nodes.plant import Plant
@@ -56,8 +55,8 @@ from .physics.simulate import (CSV_COLUMNS, OUTPUT_PERIOD_NS, PORT_COLUMNS, effe
 from .physics.valves import get_valve_model
 
 TICK_DEADLINE_S = 5.0
-#: rclpy's EventsExecutor was measured several times cheaper per callback than the
-#: SingleThreadedExecutor here (bench/bench_twin.py); the latter is kept for comparison.
+
+
 def _events_executor(*, context: Context):
     """rclpy's EventsExecutor calls ``faulthandler.enable()`` on ``sys.stderr``, which fails
     where stderr is not a real file (Jupyter, pytest's capture): hand it the process's own."""
@@ -72,6 +71,8 @@ def _events_executor(*, context: Context):
             sys.stderr = saved
 
 
+#: rclpy's EventsExecutor was measured 8x cheaper per tick than the SingleThreadedExecutor
+#: here (bench/bench_twin.py); the latter is kept for comparison.
 EXECUTORS = {'events': _events_executor, 'single': SingleThreadedExecutor}
 
 
@@ -126,17 +127,22 @@ class Recorder:
             self.flush()
 
     def flush(self) -> None:
+        """Write the buffered Float64 values (if recording) and drop what is not kept: a long
+        run without a bag or ``keep_values`` does not grow in memory."""
         self._flushed_ns = self.now_ns
-        if self.writer is None:
-            return
         for topic, (times, values) in self._pending.items():
             start = self._written[topic]
-            self.writer.write_float64('/' + topic, times[start:], values[start:])
+            if self.writer is not None:
+                self.writer.write_float64('/' + topic, times[start:], values[start:])
             if self.keep_values:
                 self._written[topic] = len(times)
             else:
+                if self.writer is None:
+                    self._other += len(times)
                 times.clear()
                 values.clear()
+        if self.writer is None:
+            return
         self.writer.flush()
         if self.on_flush is not None:
             self.on_flush(self.now_ns * 1e-9)
@@ -296,7 +302,7 @@ class Twin:
             self.plant.begin_tick(t_ns, integrate=k < n_ticks)
             self.command_generator.publish_values({'com': com[k]})
             self.scheduler.publish_values({'fr': fr[k], 'psr': psr[k]})
-            self._spin_until(lambda: self.plant.done >= k and (
+            self._spin_until(lambda k=k: self.plant.done >= k and (
                 self.monitor is None or self.monitor.done >= k), k)
             self.recorder.tick_done()
             if on_tick is not None:

@@ -6,14 +6,13 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
 from servovalve_twin.bag import cdr
-from servovalve_twin.bag.reader import read_bag, reindex
+from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.cli import main
 from servovalve_twin.errors import BagError
 from servovalve_twin.twin import run_twin
@@ -76,7 +75,7 @@ def test_encoders_equal_raw_wire_bytes(ros_context):
     diag.status = [st, DiagnosticStatus()]
     msgs['diag'] = (DiagnosticArray, diag, cdr.encode_diagnostic_array)
     pubs = {}
-    for key, (typ, msg, _) in msgs.items():
+    for key, (typ, _, _) in msgs.items():
         node.create_subscription(typ, f'probe_{key}', lambda data, k=key: got.setdefault(k, data),
                                  QOS, raw=True)
         pubs[key] = node.create_publisher(typ, f'probe_{key}', QOS)

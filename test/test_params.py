@@ -73,7 +73,8 @@ def test_cli_assignments():
 
 
 def test_frozen():
-    with pytest.raises(Exception):
+    import dataclasses
+    with pytest.raises(dataclasses.FrozenInstanceError):
         DEFAULTS.M = 1.0  # type: ignore[misc]
     assert isinstance(DEFAULTS, EhaParams)
 

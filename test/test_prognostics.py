@@ -13,8 +13,7 @@ from servovalve_twin.physics.monitor import ERROR, OK, HealthConfig, monitor_run
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.physics.scenario import load_scenario
 from servovalve_twin.physics.simulate import simulate
-from servovalve_twin.sweep import Case, make_cases, run_case, run_cases, write_dataset
-from conftest import cached_run
+from servovalve_twin.sweep import make_cases, run_case, run_cases, write_dataset
 
 PAPER = load_scenario('paper').to_dict()
 

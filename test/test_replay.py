@@ -46,7 +46,7 @@ def test_replay_with_hd_reproduces_the_bag(replays):
     print('HD replay against the bag: max error over all signals', worst)
     ref = read_bag(HD_BAG)
     assert np.max(np.abs(new.signals['xj'] - ref.signals['xj'])) <= 1e-9
-    for topic, (t, v) in ref.series.items():
+    for topic, (_, v) in ref.series.items():
         np.testing.assert_array_equal(new.series[topic][1], v, err_msg=topic)
 
 

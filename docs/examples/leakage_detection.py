@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from servovalve_twin.physics.monitor import HealthConfig
-from servovalve_twin.sweep import make_cases, run_cases, summarize, write_dataset
+from servovalve_twin.sweep import make_cases, run_cases, write_dataset
 
 SEVERITIES = [2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0]
 VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}
@@ -55,7 +55,7 @@ def plot(results, path: Path) -> None:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    for monitor, (res, summary) in results.items():
+    for monitor, (_, summary) in results.items():
         rows = summary['faults']['leakage_growth']
         axes[0].plot([r['severity'] for r in rows], [r['detection_rate'] for r in rows], 'o-',
                      label=f'{monitor} monitor ({summary["false_alarms"]} false alarms in '

@@ -42,7 +42,7 @@ class ScheduleSource(TwinNode):
     def _validate(self, params: list[Parameter]):
         for p in params:
             if p.name == 'scenario':
-                return validation_result(lambda: load_scenario(p.value))
+                return validation_result(lambda value=p.value: load_scenario(value))
         return validation_result(lambda: None)
 
     def _apply(self, params: list[Parameter]) -> None:

@@ -107,7 +107,7 @@ def _solve_port(rli, rti, rlo, rto, ps, pr, b, gdiag, p0, span):
                 return p0, n, False
     side = 0
     p_prev = lo
-    for it in range(300):
+    for _ in range(300):
         p = (lo * fhi - hi * flo) / (fhi - flo)
         if not (lo < p < hi):
             p = 0.5 * (lo + hi)
@@ -202,7 +202,7 @@ def hd_solve(xs, qj, psr, P, vs):
         p1 = p1_old
         p2 = p2_old
         span = 0.05 * psr + 1.0e4
-        for gs in range(_GS_MAX):
+        for _ in range(_GS_MAX):
             p1n, n1, ok1 = _solve_port(rl_s1, rt_s1, rl_1r, rt_1r, ps, pr,
                                        -qj + clk * p2 + c1 * p1_old, clk + c1, p1, span)
             p2n, n2, ok2 = _solve_port(rl_s2, rt_s2, rl_2r, rt_2r, ps, pr,
