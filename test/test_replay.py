@@ -81,3 +81,23 @@ def test_replay_cli(tmp_path, capsys):
     out = capsys.readouterr().out
     assert 'overstall' in out and 'XJ rms/max' in out
     assert read_bag(tmp_path / 'r').valve_model == 'C2'
+
+
+def test_replay_carries_the_recorded_faults(tmp_path):
+    """A faulted run replayed with its own model reproduces it: the faults are replayed too."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    from servovalve_twin.physics.scenario import load_scenario
+    from servovalve_twin.twin import run_twin
+    raw = load_scenario('paper').to_dict()
+    raw['faults'] = [{'at': 0.3, 'fault': 'supply_loss', 'severity': 0.2}]
+    ctx = Context()
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        run_twin('C2', raw, bag=tmp_path / 'f', context=ctx, handle_signals=False)
+        _, _, metrics = replay(tmp_path / 'f', out=tmp_path / 'g', context=ctx,
+                               handle_signals=False)
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    assert metrics['all']['xj']['max'] == 0.0

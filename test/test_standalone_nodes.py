@@ -82,7 +82,8 @@ def test_standalone_plant_parameters_and_topics(ros_context, plant_process):
     assert plant_process.returncode == 0 and 'Traceback' not in err
 
 
-@pytest.mark.parametrize('name', ['command_generator', 'scheduler', 'ecu', 'plant', 'clock'])
+@pytest.mark.parametrize('name', ['command_generator', 'scheduler', 'ecu', 'plant', 'monitor',
+                                  'clock'])
 def test_each_executable_starts_and_stops_cleanly(name):
     proc = subprocess.Popen([console_script(name), '--ros-args', '-p', 'use_sim_time:=false'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -103,6 +104,16 @@ def test_bad_start_up_parameter_is_one_line_exit_2():
     r = subprocess.run([console_script('plant'), '--ros-args', '-p', 'M:=-3.0'],
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and 'M' in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_replay_executable(tmp_path):
+    r = subprocess.run([console_script('replay'), '--ros-args', '-p',
+                        f'bag:={ROOT / "bags" / "paper_HD"}', '-p', 'valve_model:=C3', '-p',
+                        f'out:={tmp_path / "r"}'], capture_output=True, text=True, timeout=120)
+    print(r.stdout[-800:], r.stderr[-500:])
+    assert r.returncode == 0 and 'overstall' in r.stdout
+    from servovalve_twin.bag.reader import read_bag
+    assert read_bag(tmp_path / 'r').valve_model == 'C3'
 
 
 def test_twin_executable(tmp_path):

@@ -21,7 +21,8 @@ from .reader import BagRun, read_bag
 
 
 def scenario_from_bag(run: BagRun) -> Scenario:
-    """The recorded Com, FR, PSR as a step scenario (breakpoints where a value changes)."""
+    """The recorded Com, FR, PSR as a step scenario (breakpoints where a value changes), with
+    the recorded run's scheduled faults."""
     raw: dict[str, Any] = {}
     duration_ns = None
     for sig in ('com', 'fr', 'psr'):
@@ -35,6 +36,10 @@ def scenario_from_bag(run: BagRun) -> Scenario:
         duration_ns = int(t[-1]) if duration_ns is None else min(duration_ns, int(t[-1]))
     raw['duration'] = duration_ns * 1e-9
     raw['name'] = f'replay of {run.path.name}'
+    recorded = run.scenario() or {}
+    if recorded.get('faults'):
+        # the recorded run's injected faults are part of what it was: replay them too
+        raw['faults'] = [f for f in recorded['faults'] if float(f['at']) <= raw['duration']]
     for sig in ('com', 'fr', 'psr'):
         raw[sig] = [p for p in raw[sig] if p[0] <= raw['duration']]
     return scenario_from_dict(raw)
