@@ -435,14 +435,15 @@ def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
 
 def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin twin --ros-args -p valve_model:=C4 -p scenario:=paper
-    -p control_period:=0.001 -p bag:=bags/my_run``; other ``-p NAME:=VALUE`` set physical
-    parameters."""
+    -p control_period:=0.001 [-p bag:=bags/my_run] [-p record:=false] [-p overwrite:=true]
+    [-p monitor:=C2]``; other ``-p NAME:=VALUE`` set physical parameters. Recording is on by
+    default, into ``bags/<scenario>_<valve_model>``."""
     from rclpy.utilities import remove_ros_args
     argv = list(sys.argv if args is None else args)
     if remove_ros_args(argv)[1:]:
         print('usage: twin --ros-args -p valve_model:=NAME -p scenario:=NAME|FILE '
-              '-p control_period:=S -p bag:=DIR [-p monitor:=C2] [-p PARAM:=VALUE ...]',
-              file=sys.stderr)
+              '-p control_period:=S [-p bag:=DIR | -p record:=false] [-p overwrite:=true] '
+              '[-p monitor:=C2] [-p PARAM:=VALUE ...]', file=sys.stderr)
         return 2
     context = Context()
     rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -456,6 +457,8 @@ def main(args: Sequence[str] | None = None) -> int:
     scenario = values.pop('scenario', 'paper')
     period = float(values.pop('control_period', 1e-3))
     bag = values.pop('bag', '')
+    record = bool(values.pop('record', True))
+    overwrite = bool(values.pop('overwrite', False))
     monitor = values.pop('monitor', '') or None
     for builtin in ('use_sim_time', 'start_type_description_service'):
         values.pop(builtin, None)                 # declared by every rclpy node
@@ -464,8 +467,12 @@ def main(args: Sequence[str] | None = None) -> int:
     try:
         if unknown:
             raise TwinError(f'unknown parameter {unknown[0]!r}')
-        result = run_twin(valve_model, scenario, overrides, control_period=period,
-                          bag=bag or None, context=context, keep_values=False, monitor=monitor)
+        scn = load_scenario(scenario)
+        if record and not bag:
+            bag = f'bags/{scn.name}_{valve_model}'
+        result = run_twin(valve_model, scn, overrides, control_period=period,
+                          bag=bag if record else None, context=context, keep_values=False,
+                          monitor=monitor, overwrite=overwrite)
     except TwinError as exc:
         print(f'twin: error: {exc}', file=sys.stderr)
         return 2

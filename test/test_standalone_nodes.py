@@ -125,6 +125,16 @@ def test_twin_executable(tmp_path):
     from servovalve_twin.bag.reader import read_bag
     run = read_bag(tmp_path / 't')
     assert run.valve_model == 'C3' and run.params()['CLk'] == 3e-13
+    # recording is on by default, into bags/<scenario>_<model>; an existing bag is not replaced
+    cmd = [console_script('twin'), '--ros-args', '-p', 'valve_model:=C1', '-p',
+           'scenario:=defaults']
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 0 and read_bag(tmp_path / 'bags' / 'defaults_C1').valve_model == 'C1'
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 2 and 'exists' in r.stderr
+    r = subprocess.run(cmd + ['-p', 'overwrite:=true'], capture_output=True, text=True,
+                       timeout=120, cwd=tmp_path)
+    assert r.returncode == 0
 
 
 def test_multi_process_graph_shares_simulated_time(ros_context, tmp_path):
