@@ -31,9 +31,9 @@ def _add_param_options(p: argparse.ArgumentParser) -> None:
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
+    from .physics.valves import VALVE_MODEL_NAMES
     p.add_argument('--valve-model', required=True, metavar='NAME',
-                   help='valve model: linear, saturated, saturated_downstream, linear_leakage, '
-                        'A, B, C1, C2, C3, C4, HD')
+                   help='valve model: ' + ', '.join(VALVE_MODEL_NAMES))
     p.add_argument('--scenario', default='paper', metavar='paper|FILE.yaml',
                    help='built-in scenario name or YAML file (default: paper)')
     _add_param_options(p)

@@ -16,7 +16,7 @@ from typing import Any, Iterator
 import numpy as np
 import yaml
 
-from ..errors import BagError, TwinError
+from ..errors import BagError
 from .cdr import decode_float64
 from .writer import BagWriter
 
@@ -198,4 +198,4 @@ def reindex(path: str | Path) -> dict[str, Any]:
     return writer.bag_metadata()
 
 
-__all__ = ['BagRun', 'read_bag', 'reindex', 'mcap_path', 'TwinError']
+__all__ = ['BagRun', 'read_bag', 'reindex', 'mcap_path']
