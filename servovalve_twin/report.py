@@ -67,7 +67,7 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
                  title='C1, C2, C3 against HD (paper Figs. 19-23)', shade=[(0.35, 0.45)])
     params = make_params(overrides)
     curves = {n: characteristic(n, params, params.PSRN, [0.0, 8.0e-5], n_points=201)
-              for n in ('HD', 'C1', 'C2', 'C3')}
+              for n in ('HD', 'C1', 'C2', 'C3', 'SQ')}
     plot_characteristic(curves, out_dir / 'characteristic.png', params.PSRN)
     table = '\n'.join(lines)
     text = (f'{table}\n\nErrors are run - HD over the 1 ms rows of the paper scenario (whole run, '

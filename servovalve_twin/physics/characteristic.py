@@ -60,6 +60,9 @@ def plot_characteristic(curves: dict[str, dict[str, np.ndarray]], path, psr: flo
                     label=f'{name} QJ={q * 6e4:.3g} l/min')
     ax.axhline(psr * 1e-6, color='0.5', lw=0.5)
     ax.axhline(-psr * 1e-6, color='0.5', lw=0.5)
+    # a valve forced to pass flow near null reaches many times PSR (HD does): keep the
+    # interesting range in view
+    ax.set_ylim(-1.5 * psr * 1e-6, 1.5 * psr * 1e-6)
     ax.set_xlabel('XS [um]')
     ax.set_ylabel('P12 [MPa]')
     ax.set_title(f'Pressure characteristic at PSR = {psr * 1e-6:g} MPa (paper Fig. 3)')
