@@ -157,7 +157,7 @@ def test_nan_input_is_dropped_not_integrated(ros_context):
         msg = Float64()
         msg.data = math.nan
         twin.plant._on_input('psr', msg)
-        assert twin.plant.inputs['psr'] == 2.0e7 and not twin.plant._queues['psr']
+        assert twin.plant.io.latest['psr'] == 2.0e7 and not twin.plant.io.queues['psr']
 
 
 def test_bad_twin_configuration_is_an_error(ros_context):

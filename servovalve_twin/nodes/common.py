@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import signal
 import sys
+from collections import deque
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
@@ -78,6 +79,46 @@ class TwinNode(Node):
             msg = self._f64[topic] = Float64()
         msg.data = float(value)
         self.emit(topic, msg)
+
+
+class LockstepInputs:
+    """A node's Float64 inputs: the latest value of each (alone, a timer reads those) and, in
+    the lockstep, a queue per input from which each tick takes exactly one value, in arrival
+    order -- so callback order cannot change a result. With ``ticked`` the node also waits
+    for the orchestrator to open the tick (:meth:`begin`) with its time and sub-step count.
+    A non-finite value is logged and dropped, never used."""
+
+    def __init__(self, node: Node, defaults: dict[str, float], *, lockstep: bool,
+                 ticked: bool = True):
+        self.node = node
+        self.latest = dict(defaults)
+        self.lockstep = lockstep
+        self.ticked = ticked
+        self.queues: dict[str, deque] = {n: deque() for n in defaults}
+        self.ticks: deque[tuple[int, int]] = deque()
+
+    def push(self, name: str, msg: Float64) -> None:
+        v = finite_or_none(msg.data, name, self.node)
+        if v is None:
+            return
+        self.latest[name] = v
+        if self.lockstep:
+            self.queues[name].append(v)
+
+    def begin(self, t_ns: int, n_sub: int) -> None:
+        self.ticks.append((t_ns, n_sub))
+
+    def pop(self) -> tuple[tuple[int, int] | None, dict[str, float]] | None:
+        """The next complete tick, ``((t_ns, n_sub) or None, values)``, or None if incomplete."""
+        if (self.ticks or not self.ticked) and all(self.queues.values()):
+            tick = self.ticks.popleft() if self.ticked else None
+            return tick, {n: q.popleft() for n, q in self.queues.items()}
+        return None
+
+    def pending(self) -> int:
+        """Values queued beyond the tick: more than the lockstep sends means a foreign
+        publisher on the same topics."""
+        return max(len(q) for q in self.queues.values())
 
 
 def f64(value: float) -> Float64:

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from collections import deque
 from typing import Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.parameter import Parameter
 
 from ..physics.simulate import EhaPlant
-from .common import (QOS, TwinNode, declare_physical, finite_or_none, physical_from_node,
+from .common import (QOS, LockstepInputs, TwinNode, declare_physical, physical_from_node,
                      spin_standalone, validation_result, with_ros_values)
 from std_msgs.msg import Float64
 
@@ -38,14 +37,12 @@ class Ecu(TwinNode):
         self.law = EhaPlant('C2', physical_from_node(self, ECU_PARAMS))
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
-        self.lockstep = lockstep
-        self.com = 0.0
-        self.xj = 0.0
-        self._com_q: deque[float] = deque()
-        self._xj_q: deque[float] = deque()
+        # alone: Com and XJ are 0 m until the first messages arrive
+        self.io = LockstepInputs(self, {'com': 0.0, 'xj': 0.0}, lockstep=lockstep,
+                                 ticked=False)
         self.add_publishers(['cor'])
-        self.create_subscription(Float64, 'com', self._on_com, QOS)
-        self.create_subscription(Float64, 'xj', self._on_xj, QOS)
+        for name in self.io.latest:
+            self.create_subscription(Float64, name, lambda m, n=name: self._on_input(n, m), QOS)
         if not lockstep:
             self.create_timer(self.get_parameter('control_period').value, self._on_timer)
 
@@ -56,34 +53,18 @@ class Ecu(TwinNode):
     def _apply(self, params: list[Parameter]) -> None:
         self.law.set_params(with_ros_values(self.law.params, {p.name: p.value for p in params}))
 
-    def _on_com(self, msg: Float64) -> None:
-        v = finite_or_none(msg.data, 'Com', self)
-        if v is None:
-            return
-        self.com = v
-        if self.lockstep:
-            self._com_q.append(v)
-            self._try_tick()
-
-    def _on_xj(self, msg: Float64) -> None:
-        v = finite_or_none(msg.data, 'XJ', self)
-        if v is None:
-            return
-        self.xj = v
-        if self.lockstep:
-            self._xj_q.append(v)
-            self._try_tick()
-
-    def _try_tick(self) -> None:
-        if self._com_q and self._xj_q:
-            self.emit_value('cor', self.law.control(self._com_q.popleft(), self._xj_q.popleft()))
+    def _on_input(self, name: str, msg: Float64) -> None:
+        self.io.push(name, msg)
+        ready = self.io.pop() if self.io.lockstep else None
+        if ready is not None:
+            _, v = ready
+            self.emit_value('cor', self.law.control(v['com'], v['xj']))
 
     def _on_timer(self) -> None:
-        self.emit_value('cor', self.law.control(self.com, self.xj))
+        self.emit_value('cor', self.law.control(self.io.latest['com'], self.io.latest['xj']))
 
     def pending(self) -> int:
-        """Inputs waiting for their partner: more than one means a foreign publisher."""
-        return max(len(self._com_q), len(self._xj_q))
+        return self.io.pending()
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -7,7 +7,6 @@ and compares it with what the plant publishes (:mod:`servovalve_twin.physics.mon
 
 from __future__ import annotations
 
-from collections import deque
 from typing import Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -18,7 +17,7 @@ from std_msgs.msg import Float64
 from ..physics.monitor import LEVEL_NAMES, RESIDUALS, HealthConfig, HealthFilter
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
-from .common import (QOS, TwinNode, declare_physical, finite_or_none,
+from .common import (QOS, LockstepInputs, TwinNode, declare_physical,
                      physical_from_node, spin_standalone, validation_result, with_ros_values)
 
 INPUTS = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
@@ -77,11 +76,9 @@ class Monitor(TwinNode):
         self.filter = HealthFilter(self._config(), self.period)
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
-        self.lockstep = lockstep
-        self.latest = {k: 0.0 for k in INPUTS}
-        self.latest['psr'] = base.PSRN
-        self._queues = {k: deque() for k in INPUTS}
-        self._ticks: deque[tuple[int, int]] = deque()
+        defaults = {k: 0.0 for k in INPUTS}
+        defaults['psr'] = base.PSRN
+        self.io = LockstepInputs(self, defaults, lockstep=lockstep)
         self.done = -1
         self.level = 0
         self._last_diag_ns: int | None = None
@@ -116,23 +113,18 @@ class Monitor(TwinNode):
         self.filter = HealthFilter(self._config(), self.period)
 
     def _on_input(self, name: str, msg: Float64) -> None:
-        v = finite_or_none(msg.data, name, self)
-        if v is None:
-            return
-        self.latest[name] = v
-        if self.lockstep:
-            self._queues[name].append(v)
-            self._try_tick()
+        self.io.push(name, msg)
+        self._try_tick()
 
     def begin_tick(self, t_ns: int, integrate: bool = True) -> None:
         """Lockstep: expect one value of each input for the tick at ``t_ns``."""
-        self._ticks.append((t_ns, self.n_sub if integrate else 0))
+        self.io.begin(t_ns, self.n_sub if integrate else 0)
         self._try_tick()
 
     def _try_tick(self) -> None:
-        if self._ticks and all(self._queues.values()):
-            t_ns, n_sub = self._ticks.popleft()
-            values = {k: self._queues[k].popleft() for k in INPUTS}
+        ready = self.io.pop() if self.io.lockstep else None
+        if ready is not None:
+            (t_ns, n_sub), values = ready
             self._advance(t_ns, n_sub, values)
             self.done += 1
 
@@ -171,10 +163,10 @@ class Monitor(TwinNode):
         self.emit('diagnostics', msg)
 
     def _on_timer(self) -> None:
-        self._advance(self.get_clock().now().nanoseconds, self.n_sub, dict(self.latest))
+        self._advance(self.get_clock().now().nanoseconds, self.n_sub, dict(self.io.latest))
 
     def pending(self) -> int:
-        return max(len(q) for q in self._queues.values())
+        return self.io.pending()
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -3,7 +3,6 @@ the physics layer's :class:`~servovalve_twin.physics.simulate.EhaPlant`."""
 
 from __future__ import annotations
 
-from collections import deque
 from typing import Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor
@@ -13,7 +12,7 @@ from std_msgs.msg import Float64
 from ..errors import ModelError
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
-from .common import (QOS, TwinNode, declare_physical, finite_or_none, joint_state,
+from .common import (QOS, LockstepInputs, TwinNode, declare_physical, joint_state,
                      physical_from_node, spin_standalone, validation_result, with_ros_values)
 
 STATE_TOPICS = ('xs', 'xj', 'dxj')
@@ -53,14 +52,13 @@ class Plant(TwinNode):
                                'control_period')
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
-        self.lockstep = lockstep
-        self.inputs = {'cor': 0.0, 'fr': 0.0, 'psr': base.PSRN}
-        self._queues = {k: deque() for k in self.inputs}
-        self._ticks: deque[tuple[int, int]] = deque()
+        # alone: Cor 0 A, FR 0 N and PSR = PSRN until the first messages arrive
+        self.io = LockstepInputs(self, {'cor': 0.0, 'fr': 0.0, 'psr': base.PSRN},
+                                 lockstep=lockstep)
         self._joint = None                 # the JointState message, refilled every tick
         self.done = -1                     # ticks completed (lockstep)
         self.add_publishers(STATE_TOPICS + VALVE_TOPICS + ('joint_states',))
-        for name in self.inputs:
+        for name in self.io.latest:
             self.create_subscription(Float64, name, lambda m, n=name: self._on_input(n, m), QOS)
         if not lockstep:
             self.create_timer(self.get_parameter('control_period').value, self._on_timer)
@@ -87,19 +85,14 @@ class Plant(TwinNode):
 
     # -- inputs -------------------------------------------------------------------------
     def _on_input(self, name: str, msg: Float64) -> None:
-        v = finite_or_none(msg.data, name, self)
-        if v is None:
-            return
-        self.inputs[name] = v
-        if self.lockstep:
-            self._queues[name].append(v)
-            self._try_tick()
+        self.io.push(name, msg)
+        self._try_tick()
 
     # -- ticks --------------------------------------------------------------------------
     def begin_tick(self, t_ns: int, integrate: bool = True) -> None:
         """Lockstep: publish the state at t and wait for the tick's inputs; ``integrate``
         False evaluates P12 at t without advancing (the run's end instant)."""
-        self._ticks.append((t_ns, self.n_sub if integrate else 0))
+        self.io.begin(t_ns, self.n_sub if integrate else 0)
         self._publish_state()
         self._try_tick()
 
@@ -109,10 +102,10 @@ class Plant(TwinNode):
         self.emit_value('dxj', self.plant.dxj)
 
     def _try_tick(self) -> None:
-        if self._ticks and all(self._queues.values()):
-            t_ns, n_sub = self._ticks.popleft()
-            cor, fr, psr = (self._queues[k].popleft() for k in ('cor', 'fr', 'psr'))
-            self._advance(t_ns, n_sub, cor, fr, psr)
+        ready = self.io.pop() if self.io.lockstep else None
+        if ready is not None:
+            (t_ns, n_sub), v = ready
+            self._advance(t_ns, n_sub, v['cor'], v['fr'], v['psr'])
             self.done += 1
 
     def _advance(self, t_ns: int, n_sub: int, cor: float, fr: float, psr: float) -> None:
@@ -129,14 +122,14 @@ class Plant(TwinNode):
     def _on_timer(self) -> None:
         self._publish_state()
         try:
-            self._advance(self.get_clock().now().nanoseconds, self.n_sub, self.inputs['cor'],
-                          self.inputs['fr'], self.inputs['psr'])
+            v = self.io.latest
+            self._advance(self.get_clock().now().nanoseconds, self.n_sub, v['cor'], v['fr'],
+                          v['psr'])
         except ModelError as exc:
             self.get_logger().error(f'tick skipped: {exc}', throttle_duration_sec=1.0)
 
     def pending(self) -> int:
-        """Inputs queued beyond the current tick: more than one means a foreign publisher."""
-        return max(len(q) for q in self._queues.values())
+        return self.io.pending()
 
 
 def main(args: Sequence[str] | None = None) -> int:
