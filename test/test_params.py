@@ -83,3 +83,10 @@ def test_every_documented_name_exists():
     for name in ('AJ', 'M', 'CJ', 'FDJ', 'FSJ', 'CLk', 'XSM', 'XSS', 'GPQ', 'GAP', 'CorM', 'w',
                  'c', 'r', 'L_S1', 'L_1R', 'L_S2', 'L_2R', 'Cd', 'rho', 'mu', 'PR', 'DT'):
         assert name in PARAM_NAMES
+
+
+def test_readme_documents_every_parameter_and_fault():
+    from servovalve_twin.physics.faults import FAULTS
+    readme = (ROOT / 'README.md').read_text()
+    assert [n for n in PARAM_NAMES if f'| `{n}` |' not in readme] == []
+    assert [f for f in FAULTS if f'| `{f}` |' not in readme] == []
