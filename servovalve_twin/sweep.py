@@ -36,12 +36,15 @@ class Case:
     plant_model: str
     monitor_model: str
     scenario: Any                      # name, path or mapping
-    params: Mapping[str, float]        # this draw's parameter values (nuisance variation)
+    params: Mapping[str, float]        # this actuator's parameter values (with its nuisance draw)
     fault: str                         # 'none' for a nominal run
     severity: float
     onset: float
     ecu_period: float = 1e-3
     thresholds: Mapping[str, float] | None = None
+    design: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    #: the design values the monitor knows (the --param overrides, without the nuisance draw):
+    #: a monitor cannot know each unit's own mass or friction
 
 
 def run_case(case: Case) -> dict[str, Any]:
@@ -52,11 +55,12 @@ def run_case(case: Case) -> dict[str, Any]:
     if case.fault != 'none':
         raw['faults'] = list(raw.get('faults', [])) + [
             {'at': case.onset, 'fault': case.fault, 'severity': case.severity}]
-    nominal = make_params(dict(scn.params) | dict(case.params))
-    run = simulate(case.plant_model, raw, params=nominal, ecu_period=case.ecu_period)
+    actual = make_params(dict(scn.params) | dict(case.params))
+    design = make_params(dict(scn.params) | dict(case.design))
+    run = simulate(case.plant_model, raw, params=actual, ecu_period=case.ecu_period)
     config = (HealthConfig(**case.thresholds) if case.thresholds
               else HealthConfig.for_model(case.monitor_model))
-    mon = monitor_run(run, case.monitor_model, config, nominal=nominal)
+    mon = monitor_run(run, case.monitor_model, config, nominal=design)
     alarm = mon.first_alarm(ERROR)
     warn = mon.first_alarm(WARN)
     before = alarm is not None and alarm < case.onset
@@ -114,7 +118,8 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
         cases.append(Case(run_id=len(cases), plant_model=plant_model,
                           monitor_model=monitor_model, scenario=scn.to_dict(),
                           params=draw_params(), fault=fault, severity=float(severity),
-                          onset=onset, thresholds=thresholds))
+                          onset=onset, thresholds=thresholds,
+                          design={k: v for k, v in (base or {}).items()}))
     for _ in range(nominal_runs):
         add('none', 0.0)
     for name, severities in (faults or {}).items():
