@@ -179,3 +179,14 @@ def test_sweep_on_a_dask_cluster(tmp_path):
 def test_unreachable_dask_scheduler_is_a_clear_error():
     with pytest.raises(TwinError, match='cannot reach the Dask scheduler'):
         run_cases(make_cases(nominal_runs=1), scheduler='tcp://127.0.0.1:9')
+
+
+def test_monitor_knows_the_design_not_each_units_draw():
+    """Plant and monitor both C2: the residual is exactly zero for the design unit, and not
+    zero for a unit whose mass was drawn away from it (the monitor cannot know that mass)."""
+    design, drawn = make_cases(plant_model='C2', monitor_model='C2', nominal_runs=1)[0], \
+        make_cases(plant_model='C2', monitor_model='C2', nominal_runs=1, vary={'M': 0.3},
+                   seed=5)[0]
+    assert drawn.params['M'] != DEFAULTS.M and drawn.design == {}
+    assert run_case(design)['row']['peak_rms_xj'] == 0.0
+    assert run_case(drawn)['row']['peak_rms_xj'] > 1e-5
