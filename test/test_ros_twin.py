@@ -164,6 +164,8 @@ def test_bad_twin_configuration_is_an_error(ros_context):
     from servovalve_twin.errors import TwinError
     with pytest.raises(TwinError, match="unknown valve model 'X'"):
         Twin('X', SHORT, context=ros_context)
+    with pytest.raises(TwinError, match='the monitor runs a simplified model'):
+        Twin('C2', SHORT, context=ros_context, monitor='HD')
     with pytest.raises(TwinError, match='must divide the 1 ms'):
         Twin('C2', SHORT, context=ros_context, control_period=3e-3)
 

@@ -14,6 +14,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 
+from ..errors import ModelError
 from ..physics.monitor import LEVEL_NAMES, RESIDUALS, HealthConfig, HealthFilter
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
@@ -55,7 +56,7 @@ class Monitor(TwinNode):
             description='simplified valve model of the monitor',
             additional_constraints='one of: ' + ', '.join(names)))
         model = self.get_parameter('monitor_model').value
-        get_valve_model(model)
+        _check_monitor_model(model)
         defaults = HealthConfig.for_model(model)
         for field in ('window', 'warn_xj', 'error_xj', 'warn_dxj', 'error_dxj', 'warn_p12',
                       'error_p12'):
@@ -96,10 +97,7 @@ class Monitor(TwinNode):
         def check():
             for p in params:
                 if p.name == 'monitor_model':
-                    if p.value == 'HD':
-                        from ..errors import ModelError
-                        raise ModelError('the monitor runs a simplified model; HD is the plant')
-                    get_valve_model(p.value)
+                    _check_monitor_model(p.value)
             with_ros_values(self.model.params, {p.name: p.value for p in params})
         return validation_result(check)
 
@@ -167,6 +165,11 @@ class Monitor(TwinNode):
 
     def pending(self) -> int:
         return self.io.pending()
+
+
+def _check_monitor_model(name: str) -> None:
+    if get_valve_model(name).has_ports:
+        raise ModelError(f'the monitor runs a simplified model, not {name!r}; HD is the plant')
 
 
 def main(args: Sequence[str] | None = None) -> int:
