@@ -16,7 +16,7 @@ from servovalve_twin.nodes.common import QOS
 from conftest import ROOT, console_script
 
 
-def spin_until(ex, cond, timeout=20.0):
+def spin_until(ex, cond, timeout=60.0):
     deadline = time.monotonic() + timeout
     while not cond():
         ex.spin_once(timeout_sec=0.05)

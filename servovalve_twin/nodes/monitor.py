@@ -16,6 +16,7 @@ from std_msgs.msg import Float64
 
 from ..errors import ModelError
 from ..physics.monitor import LEVEL_NAMES, RESIDUALS, HealthConfig, HealthFilter
+from ..physics.params import PARAM_FIELDS
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
 from .common import (QOS, LockstepInputs, TwinNode, declare_physical,
@@ -105,9 +106,9 @@ class Monitor(TwinNode):
         changes = {p.name: p.value for p in params}
         if 'monitor_model' in changes:
             self.model.set_valve_model(changes['monitor_model'])
-        phys = with_ros_values(self.model.params, changes)
-        if phys is not self.model.params:
-            self.model.set_params(phys)
+        physical = {k: v for k, v in changes.items() if k in PARAM_FIELDS}
+        if physical:
+            self.model.set_params(with_ros_values(self.model.params, physical))
         self.filter = HealthFilter(self._config(), self.period)
 
     def _on_input(self, name: str, msg: Float64) -> None:
