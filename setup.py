@@ -31,13 +31,13 @@ setup(
         'console_scripts': [
             'servovalve-twin = servovalve_twin.cli:main',
             'command_generator = servovalve_twin.nodes.sources:main_command_generator',
-            'scheduler = servovalve_twin.nodes.sources:main_scheduler',
+            'load_supply = servovalve_twin.nodes.sources:main_load_supply',
             'ecu = servovalve_twin.nodes.ecu:main',
             'plant = servovalve_twin.nodes.plant:main',
             'clock = servovalve_twin.nodes.clock:main',
             'monitor = servovalve_twin.nodes.monitor:main',
-            'twin = servovalve_twin.twin:main',
-            'replay = servovalve_twin.bag.replay:main',
+            'twin = servovalve_twin.twin.executable:main',
+            'replay = servovalve_twin.apps.replay:main',
         ],
     },
 )

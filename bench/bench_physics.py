@@ -14,7 +14,7 @@ import sys
 CHILD = '''
 import sys, time, json
 t = time.perf_counter()
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.runs import simulate
 imp = time.perf_counter() - t
 model, repeat = sys.argv[1], int(sys.argv[2])
 t = time.perf_counter(); r = simulate(model, 'paper'); first = time.perf_counter() - t

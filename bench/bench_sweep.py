@@ -11,7 +11,7 @@ import os
 import sys
 import time
 
-from servovalve_twin.sweep import make_cases, run_cases
+from servovalve_twin.prognostics.sweep import make_cases, run_cases
 
 
 def main() -> None:

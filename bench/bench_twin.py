@@ -18,7 +18,7 @@ import sys
 CHILD = '''
 import json, sys, time, tempfile, os
 from servovalve_twin.twin import run_twin
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.runs import simulate
 model, bag, executor = sys.argv[1], sys.argv[2] == '1', sys.argv[4]
 clock, repeat = float(sys.argv[3]), int(sys.argv[5])
 tmp = tempfile.mkdtemp()

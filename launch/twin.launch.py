@@ -48,7 +48,7 @@ def generate_launch_description():
         Node(package='servovalve_twin', executable='command_generator',
              name='command_generator', output='screen',
              parameters=[common, {'scenario': scenario}]),
-        Node(package='servovalve_twin', executable='scheduler', name='scheduler',
+        Node(package='servovalve_twin', executable='load_supply', name='scheduler',
              output='screen', parameters=[common, {'scenario': scenario}]),
         Node(package='servovalve_twin', executable='ecu', name='ecu', output='screen',
              parameters=[eha, common]),

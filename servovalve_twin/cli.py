@@ -68,10 +68,10 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 # -- commands -------------------------------------------------------------------------------
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .physics.simulate import simulate
+    from .runs import simulate, write_csv
     result = simulate(args.valve_model, args.scenario, _overrides(args),
                       ecu_period=args.ecu_period)
-    result.to_csv(args.out)
+    write_csv(args.out, result.signals)
     info = ', '.join(f'{k}={v}' for k, v in result.info.items() if k != 'wall_s')
     print(f'{result.valve_model} on {result.scenario.name}: {len(result["t"])} rows -> '
           f'{args.out} ({result.info["wall_s"] * 1e3:.1f} ms of physics; {info})')
@@ -79,9 +79,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_characteristic(args: argparse.Namespace) -> int:
-    from .physics.characteristic import characteristic, plot_characteristic
+    from .apps.plots import plot_characteristic
+    from .physics.characteristic import characteristic
     from .physics.params import make_params
-    from .physics.simulate import write_csv
+    from .runs import write_csv
     params = make_params(_overrides(args))
     psr = params.PSRN if args.psr is None else args.psr
     qj = args.qj if args.qj is not None else [0.0, 4.0e-5, 8.0e-5, 1.2e-4]
@@ -94,7 +95,7 @@ def cmd_characteristic(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .physics.hd import calibrate
+    from .physics.valves.calibration import calibrate
     from .physics.params import make_params
     params = make_params(_overrides(args))
     cal = calibrate(params)
@@ -124,7 +125,7 @@ def cmd_faults(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from .report import make_report
+    from .apps.report import make_report
     text = make_report(out_dir=Path(args.out_dir), readme=Path(args.readme) if args.readme
                        else None, overrides=_overrides(args))
     print(text)
@@ -155,8 +156,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .physics.scenario import load_scenario
-    from .physics.simulate import write_csv
+    from .config import load_scenario
+    from .runs import write_csv
     from .twin import run_twin
     scenario = load_scenario(args.scenario)
     bag = None if args.no_bag else (args.bag or f'bags/{scenario.name}_{args.valve_model}')
@@ -178,7 +179,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _parse_tolerances(items: list[str]) -> dict[str, float]:
-    from .compare import COMPARED
+    from .apps.compare import COMPARED
     out = {}
     for item in items:
         name, sep, value = item.partition('=')
@@ -196,8 +197,9 @@ def _parse_tolerances(items: list[str]) -> dict[str, float]:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from .compare import (check_same_inputs, error_metrics, exceeded, format_table, load_run,
-                          plot_overlay, write_json)
+    from .apps.compare import (check_same_inputs, error_metrics, exceeded, format_table,
+                               load_run, write_json)
+    from .apps.plots import plot_overlay
     tolerances = _parse_tolerances(args.tolerance)
     ref, windows = load_run(args.ref)
     run, _ = load_run(args.run)
@@ -219,8 +221,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from .bag.replay import replay
-    from .compare import format_table
+    from .apps.replay import replay
+    from .apps.compare import format_table
     with _discovery_off():
         _, result, metrics = replay(args.bag, valve_model=args.valve_model, out=args.out,
                                     overrides=_overrides(args))
@@ -231,7 +233,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_reindex(args: argparse.Namespace) -> int:
-    from .bag.reader import reindex
+    from .bag.reindex import reindex
     meta = reindex(args.bag)
     print(f'{args.bag}: rebuilt, {meta["message_count"]} messages over '
           f'{meta["duration"]["nanoseconds"] * 1e-9:.3f} s in '
@@ -276,7 +278,7 @@ def _parse_vary(items: list[str]) -> dict[str, float]:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     import time
-    from .sweep import make_cases, run_cases, write_dataset
+    from .prognostics.sweep import make_cases, run_cases, write_dataset
     grid, ranges = _parse_faults(args.fault)
     if ranges and not args.draws:
         raise TwinError('a fault range NAME:LO~HI needs --draws N')

@@ -14,7 +14,7 @@ if str(ROOT) not in sys.path:
 
 @functools.lru_cache(maxsize=None)
 def paper_run(model: str, **overrides):
-    from servovalve_twin.physics.simulate import simulate
+    from servovalve_twin.runs import simulate
     return simulate(model, 'paper', overrides or None)
 
 

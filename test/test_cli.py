@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from servovalve_twin.cli import main
-from servovalve_twin.physics.simulate import CSV_COLUMNS, read_csv, simulate
+from servovalve_twin.physics.simulate import CSV_COLUMNS
+from servovalve_twin.runs import read_csv, simulate
 
 
 def test_simulate_writes_the_csv(tmp_path, capsys):
@@ -68,7 +69,7 @@ def test_characteristic(tmp_path):
 
 
 def test_calibrate_prints_the_gains(capsys):
-    from servovalve_twin.physics.hd import calibrate
+    from servovalve_twin.physics.valves.calibration import calibrate
     from servovalve_twin.physics.params import DEFAULTS
     assert main(['calibrate', '--param', 'c=8e-6']) == 0
     printed = {}

@@ -6,7 +6,7 @@ import numpy as np
 
 from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.cli import main
-from servovalve_twin.physics.simulate import read_csv, simulate
+from servovalve_twin.runs import read_csv, simulate
 from conftest import ROOT
 
 

@@ -6,9 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from servovalve_twin.physics.hd import calibrate, hd_ports
+from servovalve_twin.physics.valves.calibration import calibrate
+from servovalve_twin.physics.valves.hd import hd_ports
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODELS
 
 

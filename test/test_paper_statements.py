@@ -4,9 +4,9 @@ Each test prints what it measured; partial agreements are reported as such."""
 import numpy as np
 import pytest
 
-from servovalve_twin.compare import error_metrics
+from servovalve_twin.apps.compare import error_metrics
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.report import back_movement
+from servovalve_twin.apps.report import back_movement
 from conftest import cached_run
 
 C_MODELS = ('C1', 'C2', 'C3', 'C4')

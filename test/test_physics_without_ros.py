@@ -9,8 +9,8 @@ CODE = '''
 import sys
 sys.modules['rclpy'] = None          # any "import rclpy" now raises ImportError
 import servovalve_twin.physics as ph
-from servovalve_twin.physics.simulate import simulate
-from servovalve_twin.physics.hd import calibrate
+from servovalve_twin.runs import simulate
+from servovalve_twin.physics.valves.calibration import calibrate
 from servovalve_twin.physics.params import DEFAULTS
 r = simulate('C2', {'duration': 0.01})
 calibrate(DEFAULTS)

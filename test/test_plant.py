@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.physics.simulate import EhaPlant, simulate
+from servovalve_twin.physics.simulate import EhaPlant
+from servovalve_twin.runs import simulate
 from conftest import cached_run
 
 

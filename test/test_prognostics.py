@@ -9,11 +9,11 @@ import pytest
 from servovalve_twin.cli import main
 from servovalve_twin.errors import ScenarioError, TwinError
 from servovalve_twin.physics.faults import FAULTS, resolve
-from servovalve_twin.physics.monitor import ERROR, OK, HealthConfig, monitor_run
+from servovalve_twin.prognostics.monitor import ERROR, OK, HealthConfig, monitor_run
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.physics.scenario import load_scenario
-from servovalve_twin.physics.simulate import simulate
-from servovalve_twin.sweep import make_cases, run_case, run_cases, write_dataset
+from servovalve_twin.config import load_scenario
+from servovalve_twin.runs import simulate
+from servovalve_twin.prognostics.sweep import make_cases, run_case, run_cases, write_dataset
 
 PAPER = load_scenario('paper').to_dict()
 
@@ -115,7 +115,7 @@ def test_monitor_alarms_on_each_fault_at_its_documented_severity(fault):
 
 
 def test_health_filter_matches_the_array_assessment():
-    from servovalve_twin.physics.monitor import HealthFilter
+    from servovalve_twin.prognostics.monitor import HealthFilter
     m = monitor_run(faulted('leakage_growth', 10.0, at=0.1), 'C2', nominal=DEFAULTS)
     f = HealthFilter(HealthConfig(), 1e-3)
     levels = [f.update({s: m.residuals[s][i] for s in m.residuals})[0]

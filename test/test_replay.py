@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from servovalve_twin.bag.reader import read_bag
-from servovalve_twin.bag.replay import replay
+from servovalve_twin.apps.replay import replay
 from servovalve_twin.cli import main
 from servovalve_twin.physics.params import DEFAULTS
 from conftest import ROOT
@@ -88,7 +88,7 @@ def test_replay_carries_the_recorded_faults(tmp_path):
     import rclpy
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
-    from servovalve_twin.physics.scenario import load_scenario
+    from servovalve_twin.config import load_scenario
     from servovalve_twin.twin import run_twin
     raw = load_scenario('paper').to_dict()
     raw['faults'] = [{'at': 0.3, 'fault': 'supply_loss', 'severity': 0.2}]

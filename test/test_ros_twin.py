@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODEL_NAMES
 from servovalve_twin.twin import Twin, run_twin
 
@@ -29,12 +29,12 @@ def test_topics_and_types(ros_context):
                 '/clock': 'rosgraph_msgs/msg/Clock'}
     for name, type_name in expected.items():
         assert type_name in topics.get(name, []), (name, topics.get(name))
-    assert {'command_generator', 'scheduler', 'ecu', 'plant'} <= nodes
+    assert {'command_generator', 'load_supply', 'ecu', 'plant'} <= nodes
 
 
 def test_every_node_on_sim_time_and_parameters_declared(ros_context):
     with Twin('C2', SHORT, context=ros_context) as twin:
-        for node in (twin.command_generator, twin.scheduler, twin.ecu, twin.plant):
+        for node in (twin.command_generator, twin.load_supply, twin.ecu, twin.plant):
             assert node.get_parameter('use_sim_time').value is True
         d = twin.plant.describe_parameters(['valve_model', 'M', 'DT', 'C4_max_iter'])
         assert all(n in d[0].additional_constraints for n in VALVE_MODEL_NAMES)
@@ -71,9 +71,28 @@ def test_good_parameter_applies(ros_context):
 
 
 def test_scenario_parameter_validated(ros_context):
-    with Twin('C2', SHORT, context=ros_context) as twin:
-        r = twin.scheduler.set_parameters([Parameter('scenario', value='nope')])[0]
+    from servovalve_twin.nodes.sources import LoadSupply
+    node = LoadSupply(context=ros_context)
+    try:
+        r = node.set_parameters([Parameter('scenario', value='nope')])[0]
         assert not r.successful and "unknown scenario 'nope'" in r.reason
+        assert node.scenario.name == 'paper'
+        r = node.set_parameters([Parameter('scenario', value='sine_opposing')])[0]
+        assert r.successful and node.scenario.name == 'sine_opposing'
+    finally:
+        node.destroy_node()
+
+
+def test_schedule_nodes_own_the_twins_scenario(ros_context):
+    """In the twin the schedule nodes hold the scenario the twin runs (loaded once), their
+    parameter names it, and it cannot be changed under the lockstep's precomputed schedule."""
+    with Twin('C2', 'sine_opposing', context=ros_context) as twin:
+        for node in (twin.command_generator, twin.load_supply):
+            assert node.scenario is twin.scenario
+            assert node.get_parameter('scenario').value == 'sine_opposing'
+            r = node.set_parameters([Parameter('scenario', value='paper')])[0]
+            assert not r.successful
+            assert node.scenario is twin.scenario
 
 
 def test_twin_equals_simulate_with_the_same_sampled_ecu(ros_context):
@@ -174,8 +193,8 @@ def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_p
     """With a fault scheduled in the scenario: the twin (plant HD + monitor C2) equals simulate,
     its residuals and health equal the ROS-free monitor, /diagnostics goes OK -> ERROR."""
     from servovalve_twin.bag.reader import read_bag
-    from servovalve_twin.physics.monitor import monitor_run
-    from servovalve_twin.physics.scenario import load_scenario
+    from servovalve_twin.prognostics.monitor import monitor_run
+    from servovalve_twin.config import load_scenario
     raw = load_scenario('paper').to_dict()
     raw['faults'] = [{'at': 0.2, 'fault': 'leakage_growth', 'severity': 10.0}]
     with Twin('HD', raw, context=ros_context, monitor='C2', bag=tmp_path / 'm') as twin:

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from servovalve_twin.errors import ScenarioError
-from servovalve_twin.physics.scenario import builtin_scenarios, load_scenario
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.config import builtin_scenarios, load_scenario
+from servovalve_twin.runs import simulate
 
 
 def test_paper_scenario_is_models_md_section_6():

@@ -5,12 +5,12 @@ import math
 
 import numpy as np
 import pytest
-from servovalve_twin.physics.hd import _bisect
+from servovalve_twin.physics.valves.calibration import _bisect
 
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODELS
-from servovalve_twin.compare import error_metrics
+from servovalve_twin.apps.compare import error_metrics
 
 SQ = VALVE_MODELS['SQ']
 P0 = DEFAULTS.replace(CLk=0.0)

@@ -82,7 +82,7 @@ def test_standalone_plant_parameters_and_topics(ros_context, plant_process):
     assert plant_process.returncode == 0 and 'Traceback' not in err
 
 
-@pytest.mark.parametrize('name', ['command_generator', 'scheduler', 'ecu', 'plant', 'monitor',
+@pytest.mark.parametrize('name', ['command_generator', 'load_supply', 'ecu', 'plant', 'monitor',
                                   'clock'])
 def test_each_executable_starts_and_stops_cleanly(name):
     proc = subprocess.Popen([console_script(name), '--ros-args', '-p', 'use_sim_time:=false'],

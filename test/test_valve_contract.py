@@ -7,7 +7,7 @@ import pytest
 
 from servovalve_twin.errors import ModelError
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODEL_NAMES, VALVE_MODELS, get_valve_model
 
 PAPER_NAMES = ('linear', 'saturated', 'saturated_downstream', 'linear_leakage', 'A', 'B', 'C1',

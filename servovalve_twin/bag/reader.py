@@ -1,4 +1,4 @@
-"""Reading the twin's bags back, and rebuilding a bag cut short (``reindex``).
+"""Reading the twin's bags back (rebuilding one cut short is :mod:`.reindex`).
 
 A bag is a directory holding ``<name>_0.mcap`` and ``metadata.yaml`` (or the ``.mcap`` file
 itself). Every failure -- missing file, truncated or corrupt MCAP, a bag of another layout --
@@ -8,17 +8,16 @@ is a :class:`~servovalve_twin.errors.BagError` with a one-line reason, never a t
 from __future__ import annotations
 
 import dataclasses
-import shutil
 import struct
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import yaml
 
 from ..errors import BagError
 from .cdr import decode_float64
-from .writer import BagWriter
+from .table import signal_table
 
 PROVENANCE = 'servovalve_twin'
 _CORRUPT = (EOFError, struct.error, ValueError, KeyError, IndexError, UnicodeDecodeError,
@@ -105,97 +104,8 @@ def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
     if not series:
         raise BagError(f'bag {str(file)!r} holds no std_msgs/Float64 topics of the twin')
     arrays = {k: (np.array(t, dtype=np.int64), np.array(v)) for k, (t, v) in series.items()}
-    return BagRun(path=p, signals=_rows(arrays), topics=counts, provenance=provenance,
+    return BagRun(path=p, signals=signal_table(arrays), topics=counts, provenance=provenance,
                   series=arrays)
 
 
-def _rows(series: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
-    """The 1 ms rows (t, com, fr, ...) of the twin's CSV from the per-tick series."""
-    from ..physics.simulate import CSV_COLUMNS, OUTPUT_PERIOD_NS, PORT_COLUMNS
-    cols = {}
-    for col in CSV_COLUMNS[1:] + PORT_COLUMNS:
-        if f'/{col}' not in series:
-            continue
-        t, v = series[f'/{col}']
-        on_grid = t % OUTPUT_PERIOD_NS == 0
-        cols[col] = (t[on_grid] // OUTPUT_PERIOD_NS, v[on_grid])
-    if not cols:
-        raise BagError('the bag holds none of the twin topics ' + ', '.join(CSV_COLUMNS[1:]))
-    common = None
-    for ms, _ in cols.values():
-        common = ms if common is None else np.intersect1d(common, ms)
-    out = {'t': common * (OUTPUT_PERIOD_NS * 1e-9)}
-    for col, (ms, v) in cols.items():
-        out[col] = v[np.searchsorted(ms, common)]
-    return out
-
-
-def _salvage(file: Path) -> Iterator[Any]:
-    """Records of a possibly truncated MCAP file, in file order, up to the first bad byte."""
-    from mcap.stream_reader import StreamReader
-    with open(file, 'rb') as fh:
-        it = StreamReader(fh, skip_magic=False).records
-        while True:
-            try:
-                record = next(it)
-            except StopIteration:
-                return
-            except _mcap_errors():
-                return
-            yield record
-
-
-def reindex(path: str | Path) -> dict[str, Any]:
-    """Rebuild a readable bag from what an interrupted or killed run left: every complete record
-    of the ``.mcap`` (schemas, channels, messages of complete chunks, metadata) is rewritten
-    into a new file with its summary and ``metadata.yaml``. Returns the new bag metadata."""
-    from mcap.records import Channel, Message, Metadata, Schema
-    p = Path(path)
-    file = mcap_path(p)
-    bag_dir = p if p.is_dir() else p.parent
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
-    messages: list[Any] = []
-    metadata: list[Any] = []
-    try:
-        for rec in _salvage(file):
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Message):
-                messages.append(rec)
-            elif isinstance(rec, Metadata) and rec.name != 'rosbag2':
-                metadata.append(rec)
-    except OSError as exc:
-        raise BagError(f'cannot read {str(file)!r}: {exc.strerror}') from None
-    if not channels:
-        raise BagError(f'{str(file)!r} holds no readable MCAP channel: nothing to recover')
-    messages = [m for m in messages if m.channel_id in channels]
-    messages.sort(key=lambda m: m.log_time)
-    tmp_dir = bag_dir / '.reindex'
-    shutil.rmtree(tmp_dir, ignore_errors=True)
-    writer = BagWriter(tmp_dir, file_name=file.name, flush_every_ns=None,
-                       library='servovalve_twin reindex')
-    try:
-        for ch in channels.values():
-            schema = schemas.get(ch.schema_id)
-            if schema is not None:
-                qos = ch.metadata.get('offered_qos_profiles')
-                writer.add_topic(ch.topic, schema.name, yaml.safe_load(qos) if qos else None,
-                                 definition=schema.data)
-        for m in messages:
-            topic = channels[m.channel_id].topic
-            if topic in writer.channels:
-                writer.write(topic, m.data, m.log_time, m.publish_time)
-        for md in metadata:
-            writer.add_metadata(md.name, md.metadata)
-        writer.close()
-        shutil.move(str(tmp_dir / file.name), str(file))
-        shutil.move(str(tmp_dir / 'metadata.yaml'), str(bag_dir / 'metadata.yaml'))
-    finally:
-        shutil.rmtree(tmp_dir, ignore_errors=True)
-    return writer.bag_metadata()
-
-
-__all__ = ['BagRun', 'read_bag', 'reindex', 'mcap_path']
+__all__ = ['BagRun', 'read_bag', 'mcap_path', 'PROVENANCE']

@@ -17,13 +17,14 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType, SetParametersResult)
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from ..errors import ParameterError, TwinError
-from ..physics.params import DEFAULTS, PARAM_FIELDS, EhaParams, param_table
+from ..physics.params import DEFAULTS, PARAM_FIELDS, EhaParams, names_read_by, param_table
 
 #: Reliable, keep-last 10: the lockstep sends one message per topic and tick, and depth 1 was
 #: measured to drop bursts (ROS-LOCKSTEP.md).
@@ -33,8 +34,8 @@ QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 #: topic -> (message type, unit, publisher, meaning). The README's topic table is this.
 TOPICS: dict[str, tuple[type, str, str, str]] = {
     'com': (Float64, 'm', 'command_generator', 'position command Com'),
-    'fr': (Float64, 'N', 'scheduler', 'external load FR (> 0 opposes +XJ)'),
-    'psr': (Float64, 'Pa', 'scheduler', 'supply-return pressure PSR'),
+    'fr': (Float64, 'N', 'load_supply', 'external load FR (> 0 opposes +XJ)'),
+    'psr': (Float64, 'Pa', 'load_supply', 'supply-return pressure PSR'),
     'cor': (Float64, 'A', 'ecu', 'servovalve current Cor'),
     'xs': (Float64, 'm', 'plant', 'spool displacement XS'),
     'xj': (Float64, 'm', 'plant', 'jack position XJ'),
@@ -50,16 +51,124 @@ JOINT_NAME = 'jack'
 
 
 class TwinNode(Node):
-    """A node whose publications go through :meth:`emit`, so that the twin's recorder can take
-    every message at the moment it is published (``tap``), without a subscription per topic.
-    Alone, ``tap`` is None and :meth:`emit` is a plain publish."""
+    """The skeleton every twin node shares, written once.
 
-    def __init__(self, name: str, **kwargs):
+    - **parameters**: ``control_period`` (s, read-only) and, when ``subsystem`` names one of
+      :data:`~..physics.params.SUBSYSTEMS`, exactly the physical parameters it reads
+      (:meth:`declared_physical`), declared from the one schema with unit and range; every set is
+      validated as a whole (:meth:`check_parameters`, a refusal keeps the old values) and then
+      applied (:meth:`apply_parameters`), so ``self.params`` always holds valid values;
+    - **inputs**: Float64 subscriptions into a :class:`LockstepInputs` (:meth:`start_inputs`);
+      each arrival calls :meth:`try_tick`, which runs :meth:`step` once a tick is complete;
+    - **drive**: in the lockstep the orchestrator opens the ticks; alone, a timer at
+      ``control_period`` calls :meth:`on_timer` (:meth:`start`, called last by every node);
+    - **outputs**: publications go through :meth:`emit`, so that the twin's recorder can take
+      every message at the moment it is published (``tap``), without a subscription per topic.
+    """
+
+    subsystem: str | None = None
+    period_doc = 'control period [s]: inputs are held over it'
+
+    @classmethod
+    def declared_physical(cls) -> tuple[str, ...]:
+        """The physical parameters this node declares: those its subsystem reads."""
+        return names_read_by(cls.subsystem) if cls.subsystem else ()
+
+    def __init__(self, name: str, *, lockstep: bool = False, params: EhaParams | None = None,
+                 **kwargs):
         super().__init__(name, **kwargs)
+        self.lockstep = lockstep
         self.pubs: dict[str, Any] = {}
         self._f64: dict[str, Float64] = {}
         self.tap: Callable[[str, Any], None] | None = None
+        self.io: LockstepInputs | None = None
+        self.done = -1                     # ticks completed (lockstep)
+        self.declare_parameter('control_period', 0.001, ParameterDescriptor(
+            description=self.period_doc, read_only=True))
+        self.period = float(self.get_parameter('control_period').value)
+        self.physical = self.declared_physical()
+        declare_physical(self, self.physical)
+        # the twin hands over the run's parameters (its ROS parameters are set to the same
+        # values, derived ones as 0.0 = derived); alone, they are the declared ones
+        self.params = (params if params is not None
+                       else physical_from_node(self, self.physical, DEFAULTS))
+        # the parameter callbacks go live in start(): the subclass's own declarations are not
+        # parameter *sets* and must not reach check/apply before the node is built
+        self._started = False
+        self.add_on_set_parameters_callback(self._validate)
+        self.add_post_set_parameters_callback(self._apply)
 
+    # -- parameters -----------------------------------------------------------------------
+    def check_parameters(self, changes: dict[str, Any]) -> None:
+        """Raise :class:`TwinError` to refuse a set; the default checks the physical values
+        (range and cross-parameter rules) against the current ones."""
+        with_ros_values(self.params, changes)
+
+    def apply_parameters(self, changes: dict[str, Any]) -> None:
+        """Apply a validated set; the default takes the physical values into ``params`` and
+        hands them to :meth:`on_params` when there are any."""
+        physical = {k: v for k, v in changes.items() if k in PARAM_FIELDS}
+        if physical:
+            self.params = with_ros_values(self.params, physical)
+            self.on_params(self.params)
+
+    def on_params(self, params: EhaParams) -> None:
+        """New physical parameters are in force (a fault, a retune)."""
+
+    def _validate(self, params: list[Parameter]) -> SetParametersResult:
+        if not self._started:
+            return SetParametersResult(successful=True)
+        return validation_result(lambda: self.check_parameters(
+            {p.name: p.value for p in params}))
+
+    def _apply(self, params: list[Parameter]) -> None:
+        if self._started:
+            self.apply_parameters({p.name: p.value for p in params})
+
+    # -- inputs and drive -------------------------------------------------------------------
+    def start_inputs(self, defaults: dict[str, float], *, ticked: bool = True) -> None:
+        """Subscribe to the Float64 inputs ``defaults`` names (their values until the first
+        messages arrive, alone)."""
+        self.io = LockstepInputs(self, defaults, lockstep=self.lockstep, ticked=ticked)
+        for name in defaults:
+            self.create_subscription(Float64, name, lambda m, n=name: self._on_input(n, m), QOS)
+
+    def _on_input(self, name: str, msg: Float64) -> None:
+        self.io.push(name, msg)
+        self.try_tick()
+
+    def begin_tick(self, t_ns: int, n_sub: int) -> None:
+        """Lockstep: the orchestrator opens the tick at ``t_ns`` (``n_sub`` DT sub-steps to
+        integrate; 0 at the run's end instant)."""
+        self.io.begin(t_ns, n_sub)
+        self.try_tick()
+
+    def try_tick(self) -> None:
+        ready = self.io.pop() if self.lockstep else None
+        if ready is not None:
+            tick, values = ready
+            self.step(tick, values)
+            self.done += 1
+
+    def step(self, tick: tuple[int, int] | None, values: dict[str, float]) -> None:
+        """One lockstep tick with exactly one value of each input."""
+        raise NotImplementedError
+
+    def start(self) -> None:
+        """The node is built: parameter sets are checked and applied from now on, and alone a
+        timer drives :meth:`on_timer` every ``control_period`` on the node's clock."""
+        self._started = True
+        if not self.lockstep:
+            self.create_timer(self.period, self.on_timer)
+
+    def on_timer(self) -> None:
+        raise NotImplementedError
+
+    def pending(self) -> int:
+        """Inputs queued beyond the tick (a foreign publisher on the lockstep's topics)."""
+        return self.io.pending() if self.io is not None else 0
+
+    # -- outputs ----------------------------------------------------------------------------
     def add_publishers(self, topics: Iterable[str], table: dict | None = None) -> None:
         """Publishers for ``topics``, typed from ``table`` (default :data:`TOPICS`)."""
         table = TOPICS if table is None else table
@@ -154,14 +263,14 @@ def finite_or_none(value: float, what: str, node: Node) -> float | None:
 _DERIVED_NOTE = '0.0 = derived'
 
 
-def declare_physical(node: Node, names: Iterable[str] | None = None,
+def declare_physical(node: Node, names: Iterable[str],
                      read_only: Sequence[str] = ('DT',)) -> None:
     """Declare parameters of :class:`EhaParams` with description, unit and range.
 
     Derived parameters (GM, V0, C4_alpha) are declared as 0.0 meaning "derived".
     """
     rows = {r['name']: r for r in param_table()}
-    for name in names if names is not None else rows:
+    for name in names:
         r = rows[name]
         desc = ParameterDescriptor(
             name=name, description=f'{r["doc"]} [{r["unit"]}]'
@@ -183,13 +292,10 @@ def declare_physical(node: Node, names: Iterable[str] | None = None,
         node.declare_parameter(name, default, desc)
 
 
-def physical_from_node(node: Node, names: Iterable[str] | None = None,
+def physical_from_node(node: Node, names: Iterable[str],
                        base: EhaParams = DEFAULTS) -> EhaParams:
-    """The node's current physical parameters as :class:`EhaParams` (validated)."""
-    changes = {}
-    for name in names if names is not None else PARAM_FIELDS:
-        changes[name] = node.get_parameter(name).value
-    return with_ros_values(base, changes)
+    """``base`` with the node's current values of the parameters ``names`` (validated)."""
+    return with_ros_values(base, {name: node.get_parameter(name).value for name in names})
 
 
 def with_ros_values(base: EhaParams, changes: dict[str, Any]) -> EhaParams:

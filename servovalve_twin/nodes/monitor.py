@@ -2,25 +2,22 @@
 
 It runs its own copy of the actuator -- ECU law, servovalve, the chosen simplified valve model
 (default C2), jack -- with the *nominal* parameters, on the same Com, FR and PSR as the plant,
-and compares it with what the plant publishes (:mod:`servovalve_twin.physics.monitor`).
+and compares it with what the plant publishes (:mod:`servovalve_twin.prognostics.monitor`).
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.parameter import Parameter
 from std_msgs.msg import Float64
 
-from ..errors import ModelError
-from ..physics.monitor import LEVEL_NAMES, RESIDUALS, HealthConfig, HealthFilter
-from ..physics.params import PARAM_FIELDS
+from ..physics.params import PARAM_NAMES, EhaParams
 from ..physics.simulate import EhaPlant, steps_per
-from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
-from .common import (QOS, LockstepInputs, TwinNode, declare_physical,
-                     physical_from_node, spin_standalone, validation_result, with_ros_values)
+from ..physics.valves import MONITOR_MODEL_NAMES, get_monitor_model
+from ..prognostics.monitor import LEVEL_NAMES, RESIDUALS, HealthConfig, HealthFilter
+from .common import TwinNode, spin_standalone
 
 INPUTS = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
 MONITOR_TOPICS = {
@@ -33,6 +30,8 @@ MONITOR_TOPICS = {
                     "status 'servovalve_twin: EHA monitor', level OK/WARN/ERROR, residuals"),
 }
 _HEALTH_DOC = {'window': 'moving-RMS window [s]'}
+HEALTH_FIELDS = ('window', 'warn_xj', 'error_xj', 'warn_dxj', 'error_dxj', 'warn_p12',
+                 'error_p12')
 
 
 class Monitor(TwinNode):
@@ -44,23 +43,26 @@ class Monitor(TwinNode):
     (std_msgs/Float64, m, m/s, Pa: residual plant - model, and its moving RMS) every control
     period; ``diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period`` and
     at once when the level changes.
-    Parameters: ``monitor_model`` (string, a simplified model; default C2), ``window`` and
-    ``warn_*``/``error_*`` thresholds (double, SI; defaults per model,
-    :meth:`HealthConfig.for_model`), ``diagnostics_period`` (s), ``control_period`` (s,
-    read-only) and the nominal physical parameters (as the plant's).
+    Parameters: ``monitor_model`` (string, a model the registry allows as monitor; default C2),
+    ``window`` and ``warn_*``/``error_*`` thresholds (double, SI; defaults from the model's
+    registry entry), ``diagnostics_period`` (s), ``control_period`` (s, read-only) and the
+    nominal physical parameters of the whole actuator it models (ECU and plant).
     """
 
-    def __init__(self, *, lockstep: bool = False, params=None, **kwargs):
+    @classmethod
+    def declared_physical(cls) -> tuple[str, ...]:
+        """All of them: the monitor models the whole actuator, ECU included."""
+        return PARAM_NAMES
+
+    def __init__(self, **kwargs):
         super().__init__('monitor', **kwargs)
-        names = [n for n in VALVE_MODEL_NAMES if n != 'HD']
         self.declare_parameter('monitor_model', 'C2', ParameterDescriptor(
             description='simplified valve model of the monitor',
-            additional_constraints='one of: ' + ', '.join(names)))
+            additional_constraints='one of: ' + ', '.join(MONITOR_MODEL_NAMES)))
         model = self.get_parameter('monitor_model').value
-        _check_monitor_model(model)
+        get_monitor_model(model)
         defaults = HealthConfig.for_model(model)
-        for field in ('window', 'warn_xj', 'error_xj', 'warn_dxj', 'error_dxj', 'warn_p12',
-                      'error_p12'):
+        for field in HEALTH_FIELDS:
             self.declare_parameter(field, float(getattr(defaults, field)), ParameterDescriptor(
                 description=_HEALTH_DOC.get(field, f'{field.replace("_", " ")} threshold of '
                                             'the residual moving RMS [SI]'),
@@ -68,64 +70,37 @@ class Monitor(TwinNode):
                                                          step=0.0)]))
         self.declare_parameter('diagnostics_period', 0.01, ParameterDescriptor(
             description='DiagnosticArray period [s] (and at every level change)'))
-        self.declare_parameter('control_period', 0.001, ParameterDescriptor(
-            description='control period [s]', read_only=True))
-        declare_physical(self)
-        base = physical_from_node(self) if params is None else params
-        self.model = EhaPlant(model, base)
-        self.period = self.get_parameter('control_period').value
-        self.n_sub = steps_per(self.period, base, 'control_period')
+        self.model = EhaPlant(model, self.params)
+        self.n_sub = steps_per(self.period, self.params, 'control_period')
         self.filter = HealthFilter(self._config(), self.period)
-        self.add_on_set_parameters_callback(self._validate)
-        self.add_post_set_parameters_callback(self._apply)
-        defaults = {k: 0.0 for k in INPUTS}
-        defaults['psr'] = base.PSRN
-        self.io = LockstepInputs(self, defaults, lockstep=lockstep)
-        self.done = -1
         self.level = 0
         self._last_diag_ns: int | None = None
         self.add_publishers(MONITOR_TOPICS, MONITOR_TOPICS)
-        for name in INPUTS:
-            self.create_subscription(Float64, name, lambda m, n=name: self._on_input(n, m), QOS)
-        if not lockstep:
-            self.create_timer(self.period, self._on_timer)
+        defaults = {k: 0.0 for k in INPUTS}
+        defaults['psr'] = self.params.PSRN
+        self.start_inputs(defaults)
+        self.start()
 
     def _config(self) -> HealthConfig:
-        return HealthConfig(**{f: self.get_parameter(f).value for f in (
-            'window', 'warn_xj', 'error_xj', 'warn_dxj', 'error_dxj', 'warn_p12', 'error_p12')})
+        return HealthConfig(**{f: self.get_parameter(f).value for f in HEALTH_FIELDS})
 
-    def _validate(self, params: list[Parameter]):
-        def check():
-            for p in params:
-                if p.name == 'monitor_model':
-                    _check_monitor_model(p.value)
-            with_ros_values(self.model.params, {p.name: p.value for p in params})
-        return validation_result(check)
+    def check_parameters(self, changes: dict[str, Any]) -> None:
+        if 'monitor_model' in changes:
+            get_monitor_model(changes['monitor_model'])
+        super().check_parameters(changes)
 
-    def _apply(self, params: list[Parameter]) -> None:
-        changes = {p.name: p.value for p in params}
+    def on_params(self, params: EhaParams) -> None:
+        self.model.set_params(params)
+
+    def apply_parameters(self, changes: dict[str, Any]) -> None:
         if 'monitor_model' in changes:
             self.model.set_valve_model(changes['monitor_model'])
-        physical = {k: v for k, v in changes.items() if k in PARAM_FIELDS}
-        if physical:
-            self.model.set_params(with_ros_values(self.model.params, physical))
+        super().apply_parameters(changes)
         self.filter = HealthFilter(self._config(), self.period)
 
-    def _on_input(self, name: str, msg: Float64) -> None:
-        self.io.push(name, msg)
-        self._try_tick()
-
-    def begin_tick(self, t_ns: int, integrate: bool = True) -> None:
-        """Lockstep: expect one value of each input for the tick at ``t_ns``."""
-        self.io.begin(t_ns, self.n_sub if integrate else 0)
-        self._try_tick()
-
-    def _try_tick(self) -> None:
-        ready = self.io.pop() if self.io.lockstep else None
-        if ready is not None:
-            (t_ns, n_sub), values = ready
-            self._advance(t_ns, n_sub, values)
-            self.done += 1
+    def step(self, tick: tuple[int, int], values: dict[str, float]) -> None:
+        t_ns, n_sub = tick
+        self._advance(t_ns, n_sub, values)
 
     def _advance(self, t_ns: int, n_sub: int, v: dict[str, float]) -> None:
         # the monitor's own loop: its ECU sees its own XJ, as the real ECU sees the plant's
@@ -161,16 +136,8 @@ class Monitor(TwinNode):
         msg.status = [st]
         self.emit('diagnostics', msg)
 
-    def _on_timer(self) -> None:
+    def on_timer(self) -> None:
         self._advance(self.get_clock().now().nanoseconds, self.n_sub, dict(self.io.latest))
-
-    def pending(self) -> int:
-        return self.io.pending()
-
-
-def _check_monitor_model(name: str) -> None:
-    if get_valve_model(name).has_ports:
-        raise ModelError(f'the monitor runs a simplified model, not {name!r}; HD is the plant')
 
 
 def main(args: Sequence[str] | None = None) -> int:

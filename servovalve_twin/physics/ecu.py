@@ -13,3 +13,17 @@ def ecu_current(com, xj, P):
     after the ECU's saturation (see :func:`~.servovalve.servovalve_step`).
     """
     return sat(P.GAP * (com - xj), P.CorM)
+
+
+class EcuLaw:
+    """The ECU law with given parameters, called from Python (the ROS ECU and the monitor): the
+    source of the compiled :func:`ecu_current`, run by the interpreter -- a compiled call costs
+    more to enter than the law costs to compute, and IEEE arithmetic makes both bit-identical
+    (tested)."""
+
+    def __init__(self, params):
+        self.params = params
+        self._kernel = params.kernel()
+
+    def __call__(self, com: float, xj: float) -> float:
+        return float(ecu_current.py_func(float(com), float(xj), self._kernel))

@@ -7,7 +7,7 @@ and the README. Names are the canonical names of MODELS.md section 5.
 Derived parameters (``GM``, ``V0``, ``C4_alpha``) default to ``None`` and are computed from the
 others by :meth:`EhaParams.value`; giving a value overrides the derivation (a fault may scale
 ``GM``, for instance). ``XSS`` and ``GPQ`` are *not* derived: they hold the HD calibration
-(:func:`servovalve_twin.physics.hd.calibrate`) and changing the HD geometry does not silently
+(:func:`servovalve_twin.physics.valves.calibration.calibrate`) and changing the HD geometry does not silently
 recalibrate them.
 """
 
@@ -23,10 +23,16 @@ import numpy as np
 from ..errors import ParameterError
 
 
+#: the actuator's subsystems that read parameters, as the ROS graph splits them: a node declares
+#: exactly the parameters its subsystem reads, and a fault on a parameter goes to its readers
+SUBSYSTEMS = ('ecu', 'plant')
+
+
 def _p(default, unit: str, lo: float, hi: float, doc: str, *, lo_open: bool = False,
-       kind: str = 'float', group: str = '') -> Any:
+       kind: str = 'float', group: str = '', readers: tuple[str, ...] = ('plant',)) -> Any:
     return dataclasses.field(default=default, metadata=dict(
-        unit=unit, lo=lo, hi=hi, lo_open=lo_open, doc=doc, kind=kind, group=group))
+        unit=unit, lo=lo, hi=hi, lo_open=lo_open, doc=doc, kind=kind, group=group,
+        readers=readers))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,11 +58,12 @@ class EhaParams:
     FSJ: float = _p(300.0, 'N', 0.0, 1.0e7, 'static Coulomb friction (>= FDJ)', group='jack')
     XJM: float = _p(0.1, 'm', 0.0, 10.0, 'jack end stops at +-XJM', lo_open=True, group='jack')
     # ECU
-    GAP: float = _p(1.69, 'A/m', 0.0, 1.0e6, 'position-loop gain', lo_open=True, group='ecu')
+    GAP: float = _p(1.69, 'A/m', 0.0, 1.0e6, 'position-loop gain', lo_open=True, group='ecu',
+                    readers=('ecu',))
     CorM: float = _p(0.01, 'A', 0.0, 10.0, 'servovalve current saturation', lo_open=True,
-                     group='ecu')
+                     group='ecu', readers=('ecu',))
     CorB: float = _p(0.0, 'A', -10.0, 10.0, 'valve null bias current (fault), added after '
-                     'the ECU saturation', group='ecu')
+                     'the ECU saturation, in the torque motor', group='servovalve')
     # servovalve mechanics
     GM: float | None = _p(None, 'N/A', 0.0, 1.0e6, 'torque-motor gain; derived KFB*XSM/CorM',
                           lo_open=True, group='servovalve')
@@ -160,17 +167,24 @@ class EhaParams:
                                  f'{sorted(PARAM_NAMES, key=str.lower)}')
         return dataclasses.replace(self, **{n: coerce(n, v) for n, v in changes.items()})
 
-    def kernel(self) -> 'KernelParams':
-        """The flat, all-float tuple that the compiled physics reads (derived values resolved)."""
-        vals = self.resolved()
-        vals = {n: float(v) for n, v in vals.items()}
-        return KernelParams(**vals, GPN=self.gpn, k=self.k,
-                            SQ_K=self.gpn / (self.GPQ * math.sqrt(self.PSRN)))
+    def kernel(self, constants: tuple[float, ...] = ()) -> 'KernelParams':
+        """The flat, all-float tuple that the compiled physics reads (derived values resolved).
 
-    def kernel_array(self) -> np.ndarray:
+        ``constants`` fill the valve-model slots ``VC0``... (zero otherwise): a model's own
+        derived constants, computed once by its registry entry
+        (:meth:`~.valves.ValveModel.kernel`) rather than every step."""
+        if len(constants) > N_VALVE_CONSTANTS:
+            raise ParameterError(f'a valve model may define at most {N_VALVE_CONSTANTS} '
+                                 f'constants, got {len(constants)}')
+        vals = {n: float(v) for n, v in self.resolved().items()}
+        vc = [float(c) for c in constants] + [0.0] * (N_VALVE_CONSTANTS - len(constants))
+        return KernelParams(**vals, GPN=self.gpn, k=self.k,
+                            **{f'VC{i}': c for i, c in enumerate(vc)})
+
+    def kernel_array(self, constants: tuple[float, ...] = ()) -> np.ndarray:
         """The same values as a one-element structured array: numba unboxes it in about 0.3 us
         against 2.5 us for the named tuple, which matters once per ROS tick."""
-        k = self.kernel()
+        k = self.kernel(constants)
         arr = np.zeros(1, dtype=KERNEL_DTYPE)
         for name, value in zip(KernelParams._fields, k):
             arr[0][name] = value
@@ -197,9 +211,12 @@ class EhaParams:
 PARAM_FIELDS = {f.name: f for f in dataclasses.fields(EhaParams)}
 PARAM_NAMES = tuple(PARAM_FIELDS)
 
-# derived constants the compiled models read: GPN = PSRN/XSS, k = CLk*GPQ and SQ's orifice
-# coefficient GQN/sqrt(PSRN) (valves/orifice.py), computed once instead of every step
-KernelParams = collections.namedtuple('KernelParams', PARAM_NAMES + ('GPN', 'k', 'SQ_K'))
+# derived constants the compiled models read: the paper's GPN = PSRN/XSS and k = CLk*GPQ, and
+# N_VALVE_CONSTANTS slots VC0.. that a valve model fills with its own (its registry entry's
+# ``constants``), computed once instead of every step
+N_VALVE_CONSTANTS = 2
+KernelParams = collections.namedtuple('KernelParams', PARAM_NAMES + ('GPN', 'k') + tuple(
+    f'VC{i}' for i in range(N_VALVE_CONSTANTS)))
 KernelParams.__doc__ = 'All-float parameter tuple read by the compiled physics.'
 KERNEL_DTYPE = np.dtype([(n, np.float64) for n in KernelParams._fields])
 
@@ -287,8 +304,15 @@ def param_table() -> list[dict[str, Any]]:
         m = f.metadata
         rows.append(dict(name=name, default=DEFAULTS.value(name), unit=m['unit'], lo=m['lo'],
                          hi=m['hi'], lo_open=m['lo_open'], doc=m['doc'], kind=m['kind'],
-                         derived=f.default is None, group=m['group']))
+                         derived=f.default is None, group=m['group'], readers=m['readers']))
     return rows
+
+
+def names_read_by(subsystem: str) -> tuple[str, ...]:
+    """The parameters that ``subsystem`` (one of :data:`SUBSYSTEMS`) reads."""
+    if subsystem not in SUBSYSTEMS:
+        raise ParameterError(f'unknown subsystem {subsystem!r}; expected one of {SUBSYSTEMS}')
+    return tuple(n for n, f in PARAM_FIELDS.items() if subsystem in f.metadata['readers'])
 
 
 DEFAULTS = EhaParams()

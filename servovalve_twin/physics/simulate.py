@@ -4,28 +4,26 @@
 
 Run conventions (MODELS.md section 9): time is an integer count of DT steps; inputs are held
 over a step; output row i holds t_i = i*1 ms, the state at t_i, and the inputs, Cor and P12 in
-force on the step that starts at t_i.
+force on the step that starts at t_i. Scenarios come in as :class:`~.scenario.Scenario` objects
+or mappings: reading files (built-in names, YAML) is :mod:`servovalve_twin.config`'s, and
+:func:`servovalve_twin.runs.simulate` takes a name or a path.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import math
-import time
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import ModelError, ParameterError, TwinError
+from ..errors import ModelError, ParameterError
 from .ecu import ecu_current
 from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams
 from .plant import OUT_COLUMNS, TICK_OUT, run_steps, run_tick
-from .scenario import Scenario, load_scenario
+from .scenario import Scenario, as_scenario
 from .servovalve import S_DXJ, S_SIZE, S_XJ, S_XS
-from .valve_state import V_CALLS, V_MAXITER, V_NCAV, V_NONCONV, V_P1, V_P2, V_P12
 from .valves import ValveModel, get_valve_model
 
 OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
@@ -76,58 +74,21 @@ class RunResult:
         a, b = int(round(t0 * 1000)), int(round(t1 * 1000))
         return (ms >= a) & ((ms <= b) if closed else (ms < b))
 
-    def to_csv(self, path: str | Path) -> None:
-        write_csv(path, self.signals)
 
-
-def write_csv(path: str | Path, signals: Mapping[str, np.ndarray]) -> None:
-    """CSV with a header row; 17 significant digits so that values round-trip exactly."""
-    cols = list(signals)
-    rows = np.column_stack([np.asarray(signals[c], dtype=float) for c in cols])
-    with open(path, 'w', newline='', encoding='utf-8') as fh:
-        w = csv.writer(fh)
-        w.writerow(cols)
-        for r in rows:
-            w.writerow([repr(float(v)) for v in r])
-
-
-def read_csv(path: str | Path, require: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
-    """The columns of a CSV written by :func:`write_csv` (``simulate --out``); ``require``
-    names columns that must be present."""
-    try:
-        with open(path, newline='', encoding='utf-8') as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise TwinError(f'cannot read CSV {str(path)!r}: {exc.strerror}') from None
-    except UnicodeDecodeError:
-        raise TwinError(f'{str(path)!r} is not a text CSV file') from None
-    if not rows or any(c not in rows[0] for c in require):
-        raise TwinError(f'{str(path)!r} is not a run CSV: expected a header row with columns '
-                        f'{",".join(require or CSV_COLUMNS)}')
-    header = rows[0]
-    try:
-        data = np.array([[float(v) for v in r] for r in rows[1:] if r], dtype=float)
-    except ValueError as exc:
-        raise TwinError(f'{str(path)!r}: non-numeric value ({exc})') from None
-    if data.ndim != 2 or data.shape[0] == 0 or data.shape[1] != len(header):
-        raise TwinError(f'{str(path)!r}: rows do not match the header of {len(header)} columns')
-    return {name: data[:, i] for i, name in enumerate(header)}
-
-
-def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
+def simulate(valve_model: str, scenario: Scenario | Mapping,
              overrides: Mapping[str, Any] | None = None, *, ecu_period: float | None = None,
              params: EhaParams | None = None) -> RunResult:
     """Run ``scenario`` with ``valve_model``, ROS-free, in one compiled loop.
 
     :param valve_model: a name of :data:`~.valves.VALVE_MODELS`
-    :param scenario: 'paper', a YAML path, a mapping or a :class:`Scenario`
+    :param scenario: a :class:`Scenario` or a mapping of the scenario schema
     :param overrides: parameter name -> value, applied after the scenario's own ``params``
     :param ecu_period: sample the ECU with this period [s] (a multiple of DT); None = continuous
     :param params: base parameters (default :data:`~.params.DEFAULTS`)
     :raises TwinError: bad model name, parameter, scenario, period; valve failure
     """
     model = get_valve_model(valve_model)
-    scn = load_scenario(scenario)
+    scn = as_scenario(scenario)
     p = effective_params(scn, overrides, params)
     out_every = steps_per(OUTPUT_PERIOD_NS * 1e-9, p, 'the 1 ms output period')
     ecu_every = 0 if ecu_period is None else steps_per(ecu_period, p, 'the ECU period')
@@ -136,14 +97,12 @@ def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
         raise ParameterError(f'duration {scn.duration} s is not a whole number of DT = {p.DT} s')
     t_ns = np.arange(n_steps + 1, dtype=np.int64) * p.dt_ns
     com, fr, psr = scn.inputs(t_ns)
-    kernels, seg = _fault_segments(scn, p, t_ns)
+    kernels, seg = _fault_segments(model, scn, p, t_ns)
     n_rows = n_steps // out_every + 1
     out = np.full((n_rows, len(OUT_COLUMNS)), np.nan)
     s = np.zeros(S_SIZE)
     vs = model.initial_state(p)
-    wall = time.perf_counter()
     failed = run_steps(model.fn, s, vs, kernels, seg, com, fr, psr, ecu_every, out_every, out)
-    wall = time.perf_counter() - wall
     if failed >= 0:
         raise ModelError(f'valve model {model.name} failed to converge at t = '
                          f'{failed * p.DT:.6f} s')
@@ -151,27 +110,19 @@ def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
     cols = CSV_COLUMNS + (PORT_COLUMNS if model.has_ports else ())
     signals = {c: out[:, OUT_COLUMNS.index(c)].copy() for c in cols}
     return RunResult(valve_model=model.name, scenario=scn, params=p, signals=signals,
-                     ecu_period=ecu_period, info=dict(_diagnostics(model, vs), steps=n_steps,
-                                                      wall_s=wall))
+                     ecu_period=ecu_period, info=dict(model.run_totals(vs), steps=n_steps))
 
 
-def _fault_segments(scn: Scenario, p: EhaParams, t_ns: np.ndarray
+def _fault_segments(model: ValveModel, scn: Scenario, p: EhaParams, t_ns: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Stacked kernel parameters, one row per stretch between fault events, and the row in
     force on each step (an event applies from the first step starting at or after it)."""
     events = scn.fault_events(p)
     times = sorted({int(round(e.at * 1e9)) for e in events})
-    rows = [p.kernel_array()] + [fault_params(events, p, t * 1e-9).kernel_array()
-                                 for t in times]
+    rows = [model.kernel_array(p)] + [model.kernel_array(fault_params(events, p, t * 1e-9))
+                                      for t in times]
     seg = np.searchsorted(np.array(times, dtype=np.int64), t_ns, side='right').astype(np.int64)
     return np.concatenate(rows), seg
-
-
-def _diagnostics(model: ValveModel, vs: np.ndarray) -> dict[str, Any]:
-    if not model.iterative and not model.has_ports:
-        return {}
-    return dict(valve_calls=int(vs[V_CALLS]), max_iterations=int(vs[V_MAXITER]),
-                nonconverged_calls=int(vs[V_NONCONV]), cavitating_calls=int(vs[V_NCAV]))
 
 
 class EhaPlant:
@@ -184,9 +135,9 @@ class EhaPlant:
 
     def __init__(self, valve_model: str = 'C2', params: EhaParams | None = None):
         self.params = params or DEFAULTS
-        self._kernel = self.params.kernel()
-        self._kernel_arr = self.params.kernel_array()
         self.model = get_valve_model(valve_model)
+        self._kernel = self.model.kernel(self.params)
+        self._kernel_arr = self.model.kernel_array(self.params)
         self.s = np.zeros(S_SIZE)
         self.vs = self.model.initial_state(self.params)
         self.last = np.full(len(TICK_OUT), np.nan)
@@ -208,19 +159,16 @@ class EhaPlant:
         new = get_valve_model(name)
         if new is self.model:
             return
-        old_vs = self.vs
-        self.vs = new.initial_state(self.params, self.xj)
-        self.vs[V_P12] = old_vs[V_P12]
-        if self.model.has_ports:
-            self.vs[V_P1] = old_vs[V_P1]
-            self.vs[V_P2] = old_vs[V_P2]
+        self.vs = new.take_over(self.params, self.model, self.vs, self.xj)
         self.model = new
+        self._kernel = new.kernel(self.params)
+        self._kernel_arr = new.kernel_array(self.params)
 
     def set_params(self, params: EhaParams) -> None:
         """Continue with new parameters (a fault, a retune); the state is kept."""
         self.params = params
-        self._kernel = params.kernel()
-        self._kernel_arr = params.kernel_array()
+        self._kernel = self.model.kernel(params)
+        self._kernel_arr = self.model.kernel_array(params)
 
     def control(self, com: float, xj: float) -> float:
         """The ECU law: the source of the compiled function :func:`simulate` uses, evaluated
@@ -249,8 +197,8 @@ class EhaPlant:
                  self.params.PSRN, 1, np.zeros(len(TICK_OUT)))
 
     def diagnostics(self) -> dict[str, Any]:
-        return _diagnostics(self.model, self.vs)
+        return self.model.run_totals(self.vs)
 
 
-__all__ = ['simulate', 'RunResult', 'EhaPlant', 'read_csv', 'write_csv', 'effective_params',
-           'CSV_COLUMNS', 'PORT_COLUMNS', 'SIGNAL_UNITS']
+__all__ = ['simulate', 'RunResult', 'EhaPlant', 'effective_params', 'CSV_COLUMNS',
+           'PORT_COLUMNS', 'SIGNAL_UNITS']

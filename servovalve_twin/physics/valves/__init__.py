@@ -9,43 +9,84 @@ state vector of :mod:`..valve_state` (warm starts in, diagnostics out). From Pyt
 :class:`ValveModel` is called as ``model(xs, qj, psr, params, state=None) -> (p12, state,
 info)`` (MODELS.md section 9).
 
+Everything model-specific lives in the model's file and its entry here: the compiled function,
+its kernel constants, its initial state, its hand-over when switched to mid-run, its
+diagnostics, whether it has port pressures, whether it may serve as a monitor model and with
+which default thresholds. Nothing outside ``valves/`` tests a model's name.
+
 Adding a model -- the contract the tests enforce on every entry:
 
-1. write ``fn`` as an ``@njit`` function with the signature above, in SI units; it must return
-   a finite P12 for any finite input, and may read or update only its documented ``vs`` slots;
+1. write ``fn`` as an ``@njit`` function with the signature above, in SI units, in a file of
+   this folder; it must return a finite P12 for any finite input, and may read or update only
+   its documented ``vs`` slots (and the kernel slots ``VC0``.. it fills through ``constants``);
 2. register it below in :data:`VALVE_MODELS` under the name users type (``valve_model:=NAME``),
-   with the paper figure it reproduces and whether it yields port pressures P1/P2;
+   with the paper figure it reproduces and what differs from the defaults of
+   :class:`ValveModel`;
 3. the contract tests (``test/test_valve_contract.py``) then run it at random points, through
-   a whole scenario, in the ROS plant and in bags, with no further change.
+   ``simulate``, in the stateful plant, across a mid-run switch, in a short ROS twin run and
+   in its bag, with no further change.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from ...errors import ModelError
 from ..params import EhaParams
-from . import simplified as _s
-from .orifice import model_sq
-from ..valve_state import (V_CAV, V_FAIL, V_ITER, V_NONCONV, V_P1, V_P2, V_XJ, VS_SIZE,
+from ..valve_state import (V_CALLS, V_FAIL, V_MAXITER, V_NCAV, V_NONCONV, V_P12, V_XJ, VS_SIZE,
                            new_state)
-from ..hd import hd_solve
+from . import hd as _hd
+from . import orifice as _sq
+from . import simplified as _s
+
+
+def _rest_state(params: EhaParams, xj: float = 0.0) -> np.ndarray:
+    """A stateless model at rest: P12 = 0 (C4's warm start), no port pressures."""
+    vs = new_state()
+    vs[V_XJ] = xj
+    return vs
+
+
+def _keep_p12(vs: np.ndarray, old_vs: np.ndarray, old_has_ports: bool) -> None:
+    """Switched to mid-run: start from the last P12 (C4's short run warm-starts from it)."""
+    vs[V_P12] = old_vs[V_P12]
+
+
+def _no_info(vs: np.ndarray) -> dict[str, Any]:
+    return {}
+
+
+def _no_constants(params: EhaParams) -> tuple[float, ...]:
+    return ()
 
 
 @dataclasses.dataclass(frozen=True)
 class ValveModel:
-    """A registered valve model: its compiled function and what users need to know about it."""
+    """A registered valve model: its compiled function and everything else that is its own."""
 
     name: str
     fn: Callable
     figure: str
     summary: str
     has_ports: bool = False     # publishes P1/P2 (HD)
-    iterative: bool = False     # reports iteration counts (C4, HD)
+    iterative: bool = False     # counts iterations and non-converged calls (C4, HD)
+    #: may serve as the monitor model (a fast simplified model; HD is the plant reference)
+    monitor: bool = True
+    #: default health thresholds as the monitor model (``warn_xj``.. ``error_p12``, SI units)
+    monitor_thresholds: Mapping[str, float] | None = dataclasses.field(
+        default_factory=lambda: dict(_s.MONITOR_THRESHOLDS))
+    #: params -> the kernel constants VC0.. this model reads (computed once, not per step)
+    constants: Callable[[EhaParams], tuple[float, ...]] = _no_constants
+    #: (params, xj) -> the valve state at rest
+    rest_state: Callable[[EhaParams, float], np.ndarray] = _rest_state
+    #: (new state, old state, old model has ports) -> None: what it takes over mid-run
+    handover: Callable[[np.ndarray, np.ndarray, bool], None] = _keep_p12
+    #: valve state -> diagnostics of the last call, by name
+    last_info: Callable[[np.ndarray], dict[str, Any]] = _no_info
 
     def __call__(self, xs: float, qj: float, psr: float, params: EhaParams,
                  state: np.ndarray | None = None) -> tuple[float, np.ndarray, dict[str, Any]]:
@@ -56,29 +97,42 @@ class ValveModel:
         for label, v in (('XS', xs), ('QJ', qj), ('PSR', psr)):
             if not math.isfinite(v):
                 raise ModelError(f'{label} must be finite, got {v!r}')
-        p12 = float(self.fn(float(xs), float(qj), float(psr), params.kernel(), vs))
+        p12 = float(self.fn(float(xs), float(qj), float(psr), self.kernel(params), vs))
         if vs[V_FAIL]:
             raise ModelError(f'valve model {self.name} failed to converge at XS={xs!r} m, '
                              f'QJ={qj!r} m^3/s, PSR={psr!r} Pa')
         return p12, vs, self.info(vs)
 
+    def kernel(self, params: EhaParams):
+        """The compiled physics' parameter tuple for this model (its constants filled in)."""
+        return params.kernel(self.constants(params))
+
+    def kernel_array(self, params: EhaParams) -> np.ndarray:
+        """:meth:`kernel` as the one-row structured array the compiled loops take."""
+        return params.kernel_array(self.constants(params))
+
     def initial_state(self, params: EhaParams, xj: float = 0.0) -> np.ndarray:
-        """State at rest: P12 = 0; HD ports at (PS + PR)/2 = PR + PSRN/2."""
-        vs = new_state(params.PR + 0.5 * params.PSRN)
-        vs[V_XJ] = xj
+        """The valve state at rest (jack at ``xj``)."""
+        return self.rest_state(params, xj)
+
+    def take_over(self, params: EhaParams, old: 'ValveModel', old_vs: np.ndarray,
+                  xj: float) -> np.ndarray:
+        """This model's state when it replaces ``old`` mid-run with the jack at ``xj``."""
+        vs = self.initial_state(params, xj)
+        self.handover(vs, old_vs, old.has_ports)
         return vs
 
     def info(self, vs: np.ndarray) -> dict[str, Any]:
         """Diagnostics of the last call, by name."""
-        out: dict[str, Any] = {}
-        if self.iterative:
-            out['iterations'] = int(vs[V_ITER])
-            out['nonconverged_calls'] = int(vs[V_NONCONV])
-        if self.has_ports:
-            out['p1'] = float(vs[V_P1])
-            out['p2'] = float(vs[V_P2])
-            out['cavitation'] = int(vs[V_CAV])
-        return out
+        return self.last_info(vs)
+
+    def run_totals(self, vs: np.ndarray) -> dict[str, Any]:
+        """Counters over a run (iterative models): calls, largest iteration count, calls that
+        did not converge, calls with a cavitating port."""
+        if not self.iterative:
+            return {}
+        return dict(valve_calls=int(vs[V_CALLS]), max_iterations=int(vs[V_MAXITER]),
+                    nonconverged_calls=int(vs[V_NONCONV]), cavitating_calls=int(vs[V_NCAV]))
 
 
 #: name -> model. The names are those of the command line, the ROS parameter and the bags.
@@ -96,15 +150,20 @@ VALVE_MODELS: dict[str, ValveModel] = {m.name: m for m in (
     ValveModel('C3', _s.model_c3, 'Figs. 14-15', 'P12 = sat(U, PSR)/(1 + k*XSS/max(|XS|, XSS))'),
     ValveModel('C4', _s.model_c4, 'Figs. 16-17',
                'fixed point of P12 = sat(U - k*P12, PSR) by a pseudo-dynamic short run',
-               iterative=True),
-    ValveModel('SQ', model_sq, 'beyond the paper (issue 6)',
-               'explicit four-edge orifice law: sqrt load droop, P12 > PSR when over-run'),
-    ValveModel('HD', hd_solve, 'Fig. 23 reference',
+               iterative=True, last_info=_s.c4_info),
+    ValveModel('SQ', _sq.model_sq, 'beyond the paper (issue 6)',
+               'explicit four-edge orifice law: sqrt load droop, P12 > PSR when over-run',
+               constants=_sq.sq_constants, monitor_thresholds=dict(_sq.MONITOR_THRESHOLDS)),
+    ValveModel('HD', _hd.hd_solve, 'Fig. 23 reference',
                'four-edge valve: laps, clearance, orifice + laminar gap, port continuity',
-               has_ports=True, iterative=True),
+               has_ports=True, iterative=True, monitor=False, monitor_thresholds=None,
+               rest_state=_hd.hd_initial_state, handover=_hd.hd_handover,
+               last_info=_hd.hd_info),
 )}
 
 VALVE_MODEL_NAMES = tuple(VALVE_MODELS)
+#: the models that may serve as the monitor model
+MONITOR_MODEL_NAMES = tuple(n for n, m in VALVE_MODELS.items() if m.monitor)
 
 
 def get_valve_model(name: str) -> ValveModel:
@@ -114,3 +173,12 @@ def get_valve_model(name: str) -> ValveModel:
     except (KeyError, TypeError):
         raise ModelError(f'unknown valve model {name!r}; expected one of '
                          f'{list(VALVE_MODEL_NAMES)}') from None
+
+
+def get_monitor_model(name: str) -> ValveModel:
+    """A registered model that may serve as the monitor model, or a one-line refusal."""
+    model = get_valve_model(name)
+    if not model.monitor:
+        raise ModelError(f'the monitor runs a simplified model, not {name!r}; expected one of '
+                         f'{list(MONITOR_MODEL_NAMES)}')
+    return model

@@ -11,10 +11,11 @@ Assumptions.
 
 1. A matched, symmetric four-way spool valve; supply PS = PSR, return PR = 0 (gauge). Each edge
    is a turbulent orifice: edge flow ``Q = a*K*sqrt(2*dp)`` (sign-preserving), opening ``a``.
-2. Underlapped metering: the edges feeding in the commanded direction open as ``a1 = x0 + XS``,
-   the opposite pair as ``a2 = max(x0 - XS, 0)`` (XS >= 0; odd symmetry for XS < 0). This is the
-   simplest opening law with a finite null pressure gain; ``x0`` stands for everything that
-   makes HD's null soft (radial clearance, corner radius, laminar gaps).
+2. A soft null: the edges feeding in the commanded direction open as ``a1 = (r + XS)/2``, the
+   opposite pair as ``a2 = (r - XS)/2``, ``r = sqrt(XS^2 + x0^2)`` (XS >= 0; odd symmetry for
+   XS < 0): a hyperbola that tends to the critical-centre openings XS and 0 away from null and
+   has a finite null pressure gain; ``x0`` stands for everything that makes HD's null soft
+   (radial clearance, corner radius, laminar gaps).
 3. While both ports stay between return and supply, symmetry gives P1 = (PS + P12)/2 and
    P2 = (PS - P12)/2 (Merritt). Outside, the starved port cavitates at ~PR (as in HD, with PR
    neglected against PSR) and the other port carries the whole load pressure.
@@ -39,10 +40,10 @@ The three branches meet continuously at ``P12 = +-PS``. The conjugate forms avoi
 
 Calibration, from the same HD-derived parameters as the C-models (nothing of HD's geometry):
 
-- null pressure gain: at QL = 0, ``P12 = PS*2*x0*XS/(x0^2 + XS^2)`` near null, slope
-  ``2*PS/x0``; the paper's ``PSR/XSS`` gives ``x0 = 2*XSS``;
-- flow gain: fully open and unloaded at PSRN the flow is ``GQN*XSM`` with
-  ``GQN = GPN/GPQ``: ``K = GQN*XSM/((x0 + XSM)*sqrt(PSRN))``.
+- null pressure gain: at QL = 0, ``P12 = PS*2*r*XS/(r^2 + XS^2)``, slope ``2*PS/x0`` at null;
+  the paper's ``PSR/XSS`` gives ``x0 = 2*XSS``;
+- flow gain: unloaded, ``QL = (A - B)*sqrt(PS) = K*XS*sqrt(PS)``, which is ``GQN*XS`` at PSRN
+  (``GQN = GPN/GPQ``) with ``K = GQN/sqrt(PSRN)`` (:func:`sq_constants`).
 
 Leakage: with ``P0 = f(QJ)`` the leak-free pressure and ``P1 = f(QJ + CLk*P0)`` the pressure
 at the flow the leak would add, the secant through both gives
@@ -57,6 +58,12 @@ non-monotonic in QJ by steps of about 0.01 %; the tests check monotonicity up to
 import math
 
 from numba import njit
+
+
+def sq_constants(params) -> tuple[float]:
+    """SQ's kernel constant ``VC0``: the orifice coefficient ``K = GQN/sqrt(PSRN)`` with
+    ``GQN = GPN/GPQ`` (named K, not k: the paper's k is the leakage gain CLk*GPQ)."""
+    return (params.gpn / (params.GPQ * math.sqrt(params.PSRN)),)
 
 
 @njit(cache=True, inline='always')
@@ -81,15 +88,15 @@ def model_sq(xs, qj, psr, P, vs):
     if psr <= 0.0:
         return 0.0
     x0 = 2.0 * P.XSS
-    k = P.SQ_K                                        # GQN/sqrt(PSRN)
+    kq = P.VC0                      # the orifice coefficient K = GQN/sqrt(PSRN), sq_constants
     sign = 1.0
     if xs < 0.0:                                      # odd symmetry
         xs = -xs
         qj = -qj
         sign = -1.0
     r = math.sqrt(xs * xs + x0 * x0)
-    a = 0.5 * k * (r + xs)
-    b = 0.5 * k * (r - xs)          # r - xs >= x0^2/(2*r): no harmful cancellation up to XSM
+    a = 0.5 * kq * (r + xs)
+    b = 0.5 * kq * (r - xs)          # r - xs >= x0^2/(2*r): no harmful cancellation up to XSM
     a2ps2 = 2.0 * a * a * psr
     b2ps2 = 2.0 * b * b * psr
     ab2ps2 = a2ps2 + b2ps2
@@ -101,3 +108,9 @@ def model_sq(xs, qj, psr, P, vs):
     # predicted point Q1 = QJ + CLk*P0 -- a fixed formula, no iteration
     p1 = _branches(a, b, qj + P.CLk * p0, psr, a2ps2, b2ps2, ab2ps2, inv_ab2)
     return sign * p0 * p0 / (2.0 * p0 - p1)
+
+
+#: SQ as the monitor model: it follows HD ten times closer than C2, so its thresholds are ten
+#: times tighter -- 2 (warn) and 3 (error) times its largest nominal indicator against HD.
+MONITOR_THRESHOLDS = dict(warn_xj=1.0e-3, error_xj=1.5e-3, warn_dxj=0.015, error_dxj=0.022,
+                          warn_p12=1.3e6, error_p12=2.0e6)

@@ -14,7 +14,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import TwinError
+from ..errors import TwinError
 
 #: signals compared, with their display unit and scale
 COMPARED = {'xj': ('XJ', 'mm', 1e3), 'dxj': ('DXJ', 'mm/s', 1e3), 'p12': ('P12', 'MPa', 1e-6),
@@ -102,43 +102,11 @@ def write_json(path: str | Path, payload: Any) -> None:
     Path(path).write_text(json.dumps(clean(payload), indent=2) + '\n', encoding='utf-8')
 
 
-def plot_overlay(runs: Mapping[str, Mapping[str, np.ndarray]], path: str | Path, *,
-                 title: str = '', reference: str | None = None,
-                 signals: Sequence[str] = ('xj', 'dxj', 'p12', 'xs'),
-                 shade: Sequence[tuple[float, float]] = ()) -> None:
-    """Stacked time plots of several runs, in the manner of the paper's Figs. 19-23: one axis
-    per signal (XJ, DXJ, P12, XS against t); the reference drawn black and dashed."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(signals), 1, figsize=(8.0, 2.1 * len(signals)), sharex=True)
-    axes = np.atleast_1d(axes)
-    for ax, sig in zip(axes, signals):
-        label, unit, scale = COMPARED.get(sig, (sig.upper(), 'SI', 1.0))
-        for name, data in runs.items():
-            if sig not in data:
-                continue
-            style = dict(color='k', ls='--', lw=1.2) if name == reference else dict(lw=1.0)
-            ax.plot(data['t'], np.asarray(data[sig]) * scale, label=name, **style)
-        for t0, t1 in shade:
-            ax.axvspan(t0, t1, color='0.9', zorder=0)
-        ax.set_ylabel(f'{label} [{unit}]')
-        ax.grid(True, lw=0.3)
-    axes[0].legend(loc='best', fontsize=8, ncol=min(4, len(runs)))
-    axes[-1].set_xlabel('t [s]')
-    if title:
-        axes[0].set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
 def load_run(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, tuple[float, float]]]:
     """A run's 1 ms signals from a bag (directory or .mcap) or a ``simulate`` CSV, and its
     windows: the scenario's phases (split at every breakpoint) and named windows."""
-    from .bag.reader import read_bag
-    from .physics.simulate import read_csv
+    from ..bag.reader import read_bag
+    from ..runs import read_csv
     p = Path(path)
     if p.suffix == '.csv':
         signals = read_csv(p, require=('t', 'xj'))
@@ -147,7 +115,7 @@ def load_run(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, tuple[f
     windows: dict[str, tuple[float, float]] = {}
     raw = run.scenario()
     if raw is not None:
-        from .physics.scenario import scenario_from_dict
+        from ..physics.scenario import scenario_from_dict
         scn = scenario_from_dict(raw)
         windows = {f'phase{i + 1}': span for i, span in enumerate(scn.phases())}
         windows.update(scn.windows)

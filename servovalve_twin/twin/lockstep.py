@@ -5,7 +5,7 @@ Per control period k (t = k*Tc, an integer count of nanoseconds; ROS-LOCKSTEP.md
 
 1. ``/clock`` is published with t (every node has ``use_sim_time`` true);
 2. the plant publishes its state at t (XS, XJ, DXJ);
-3. the command generator and the scheduler publish Com, FR, PSR at t;
+3. the command generator and the load and supply node publish Com, FR, PSR at t;
 4. the executor spins until the plant reports tick k done: the ECU computes Cor once it holds
    that tick's Com and XJ; the plant, once it holds Cor, FR and PSR, publishes P12, QJ (P1, P2)
    and the joint state at t and integrates [t, t + Tc) in DT sub-steps;
@@ -38,21 +38,22 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
-from . import __version__
-from .bag.cdr import ENCODERS
-from .bag.writer import BagWriter
-from .errors import TwinError
-from .nodes.clock import clock_msg
-from .nodes.common import TOPICS
-from .nodes.ecu import ECU_PARAMS, Ecu
-from .nodes.monitor import MONITOR_TOPICS, Monitor
-from .nodes.plant import Plant
-from .nodes.sources import CommandGenerator, Scheduler
-from .physics.params import PARAM_NAMES, EhaParams
-from .physics.scenario import Scenario, load_scenario
-from .physics.simulate import (CSV_COLUMNS, OUTPUT_PERIOD_NS, PORT_COLUMNS, effective_params,
-                               steps_per)
-from .physics.valves import get_valve_model
+from .. import __version__
+from ..bag.recorder import Recorder
+from ..bag.table import signal_table
+from ..bag.writer import BagWriter
+from ..config import load_scenario
+from ..errors import TwinError
+from ..nodes.clock import clock_msg
+from ..nodes.common import TOPICS
+from ..nodes.ecu import Ecu
+from ..nodes.monitor import MONITOR_TOPICS, Monitor
+from ..nodes.plant import Plant
+from ..nodes.sources import CommandGenerator, LoadSupply
+from ..physics.params import EhaParams
+from ..physics.scenario import Scenario
+from ..physics.simulate import OUTPUT_PERIOD_NS, effective_params, steps_per
+from ..physics.valves import get_monitor_model, get_valve_model
 
 TICK_DEADLINE_S = 5.0
 
@@ -79,84 +80,6 @@ EXECUTORS = {'events': _events_executor, 'single': SingleThreadedExecutor}
 def _type_name(msg_type: type) -> str:
     module = msg_type.__module__.split('.')
     return f'{module[0]}/msg/{msg_type.__name__}'
-
-
-class Recorder:
-    """Takes every message the twin's nodes publish, at the moment they publish it (their
-    ``tap``), and writes it to the bag with the tick's simulated time as log and publish time,
-    as exact CDR wire bytes (:mod:`.bag.cdr`; the tests check them against raw subscriptions).
-    Float64 values are buffered and packed per topic at each flush, every ``flush_ns`` of
-    simulated time, so a killed run loses at most that much. The values are also what ``--out``
-    writes as the CSV of the ROS run's own messages."""
-
-    def __init__(self, writer: BagWriter | None, *, keep_values: bool,
-                 flush_ns: int = 50_000_000, topics: dict | None = None):
-        self.writer = writer
-        self.keep_values = keep_values
-        self.now_ns = 0
-        self.flush_ns = flush_ns
-        self._flushed_ns = 0
-        self.on_flush: Callable[[float], None] | None = None   # called with the flushed time
-        self.types = {f'/{t}': _type_name(spec[0]) for t, spec in (topics or TOPICS).items()}
-        self.types['/clock'] = 'rosgraph_msgs/msg/Clock'
-        self.encoders = {topic: ENCODERS[tn] for topic, tn in self.types.items()}
-        float_topics = [t for t, tn in self.types.items() if tn == 'std_msgs/msg/Float64']
-        # per Float64 topic: times and values not yet written; all of them when keep_values
-        self._pending = {t[1:]: ([], []) for t in float_topics}
-        self._written = {t[1:]: 0 for t in float_topics}
-        self._other = 0
-        if writer is not None:
-            for topic, type_name in self.types.items():
-                writer.add_topic(topic, type_name)
-
-    def record(self, topic: str, msg: Any) -> None:
-        """The nodes' tap: ``topic`` as the node names it (relative: 'xj', or '/clock')."""
-        pending = self._pending.get(topic)
-        if pending is not None:
-            pending[0].append(self.now_ns)
-            pending[1].append(msg.data)
-        elif self.writer is not None:
-            name = topic if topic[0] == '/' else '/' + topic
-            self.writer.write(name, self.encoders[name](msg), self.now_ns)
-        else:
-            self._other += 1
-
-    def tick_done(self) -> None:
-        """Called after each tick: flush every ``flush_ns`` of simulated time."""
-        if self.now_ns - self._flushed_ns >= self.flush_ns:
-            self.flush()
-
-    def flush(self) -> None:
-        """Write the buffered Float64 values (if recording) and drop what is not kept: a long
-        run without a bag or ``keep_values`` does not grow in memory."""
-        self._flushed_ns = self.now_ns
-        for topic, (times, values) in self._pending.items():
-            start = self._written[topic]
-            if self.writer is not None:
-                self.writer.write_float64('/' + topic, times[start:], values[start:])
-            if self.keep_values:
-                self._written[topic] = len(times)
-            else:
-                if self.writer is None:
-                    self._other += len(times)
-                times.clear()
-                values.clear()
-        if self.writer is None:
-            return
-        self.writer.flush()
-        if self.on_flush is not None:
-            self.on_flush(self.now_ns * 1e-9)
-
-    def values(self, topic: str) -> tuple[list[int], list[float]]:
-        return self._pending[topic]
-
-    @property
-    def count(self) -> int:
-        """Messages recorded so far."""
-        if self.writer is not None:
-            return sum(self.writer.counts.values()) + sum(
-                len(t) - self._written[k] for k, (t, _) in self._pending.items())
-        return self._other + sum(len(t) for t, _ in self._pending.values())
 
 
 @dataclasses.dataclass
@@ -222,35 +145,40 @@ class Twin:
                        if bag is not None else None)
         sim = Parameter('use_sim_time', Parameter.Type.BOOL, True)
         period = Parameter('control_period', Parameter.Type.DOUBLE, float(control_period))
-        scn = Parameter('scenario', Parameter.Type.STRING, 'paper')
-        kw = dict(context=self.context)
+        # the schedule nodes own the scenario loaded here, once; their parameter names it
+        scn = Parameter('scenario', Parameter.Type.STRING, _scenario_label(scenario,
+                                                                           self.scenario))
+        kw = dict(context=self.context, lockstep=True)
         self.nodes: list[Node] = []
+        if monitor is not None:
+            get_monitor_model(monitor)
         try:
-            self.command_generator = CommandGenerator(lockstep=True, **kw,
-                                                      parameter_overrides=[sim, period, scn])
-            self.command_generator.scenario = self.scenario
-            self.scheduler = Scheduler(lockstep=True, **kw, parameter_overrides=[sim, period, scn])
-            self.scheduler.scenario = self.scenario
-            physical = [_ros_param(n, self.params) for n in PARAM_NAMES]
-            self.ecu = Ecu(lockstep=True, **kw, parameter_overrides=[sim] + [
-                p for p in physical if p.name in ECU_PARAMS])
-            self.plant = Plant(lockstep=True, params=self.params, **kw, parameter_overrides=[
-                sim, period, Parameter('valve_model', Parameter.Type.STRING, valve_model)]
-                + physical)
-            self.clock = Node('twin_clock', **kw, parameter_overrides=[sim])
+            self.command_generator = CommandGenerator(
+                scenario=self.scenario, **kw, parameter_overrides=[sim, period, scn])
+            self.load_supply = LoadSupply(scenario=self.scenario, **kw,
+                                          parameter_overrides=[sim, period, scn])
+            self.ecu = Ecu(params=self.params, **kw, parameter_overrides=[sim, period] + [
+                _ros_param(n, self.params) for n in Ecu.declared_physical()])
+            self.plant = Plant(params=self.params, **kw, parameter_overrides=[
+                sim, period, Parameter('valve_model', Parameter.Type.STRING, valve_model)] + [
+                _ros_param(n, self.params) for n in Plant.declared_physical()])
+            self.clock = Node('twin_clock', context=self.context, parameter_overrides=[sim])
             self.clock_pub = self.clock.create_publisher(Clock, '/clock', 10)
             self.monitor = None
             topics = dict(TOPICS)
             if monitor is not None:
-                self.monitor = Monitor(lockstep=True, params=self.params, **kw,
-                                       parameter_overrides=[
-                                           sim, period, Parameter('monitor_model',
-                                                                  Parameter.Type.STRING,
-                                                                  monitor)] + physical)
+                # the monitor models the whole actuator with the nominal (pre-fault) values
+                self.monitor = Monitor(params=self.params, **kw, parameter_overrides=[
+                    sim, period, Parameter('monitor_model', Parameter.Type.STRING, monitor)]
+                    + [_ros_param(n, self.params) for n in Monitor.declared_physical()])
                 topics.update(MONITOR_TOPICS)
-            self.recorder = Recorder(self.writer, keep_values=keep_values, topics=topics)
+            types = {f'/{t}': _type_name(spec[0]) for t, spec in topics.items()}
+            types['/clock'] = 'rosgraph_msgs/msg/Clock'
+            self.recorder = Recorder(self.writer, types, keep_values=keep_values)
             self.recorder.on_flush = on_flush
-            self.nodes = [self.command_generator, self.scheduler, self.ecu, self.plant,
+            #: the actuator's nodes: a scheduled fault goes to every one that reads its parameter
+            self.actuator = [self.ecu, self.plant]
+            self.nodes = [self.command_generator, self.load_supply, self.ecu, self.plant,
                           self.clock] + ([self.monitor] if self.monitor else [])
             for n in self.nodes:
                 if n is not self.clock:
@@ -297,11 +225,12 @@ class Twin:
                 self.clock_pub.publish(msg)
             if k in faults:
                 self._inject(faults[k], t_ns)
+            n_sub = self.n_sub if k < n_ticks else 0      # the end instant: evaluate only
             if self.monitor is not None:
-                self.monitor.begin_tick(t_ns, integrate=k < n_ticks)
-            self.plant.begin_tick(t_ns, integrate=k < n_ticks)
+                self.monitor.begin_tick(t_ns, n_sub)
+            self.plant.begin_tick(t_ns, n_sub)
             self.command_generator.publish_values({'com': com[k]})
-            self.scheduler.publish_values({'fr': fr[k], 'psr': psr[k]})
+            self.load_supply.publish_values({'fr': fr[k], 'psr': psr[k]})
             self._spin_until(lambda k=k: self.plant.done >= k and (
                 self.monitor is None or self.monitor.done >= k), k)
             self.recorder.tick_done()
@@ -333,13 +262,24 @@ class Twin:
         return out
 
     def _inject(self, events: list, t_ns: int) -> None:
-        """Apply fault events through the plant's parameters, as ``ros2 param set`` would."""
-        params = [_ros_param_value(e.param, e.value) for e in events]
-        for e, result in zip(events, self.plant.set_parameters(params)):
-            if not result.successful:
-                raise TwinError(f'fault {e.label} at {t_ns * 1e-9:.3f} s refused: '
-                                f'{result.reason}')
-            self.plant.get_logger().info(f'fault injected at {t_ns * 1e-9:.3f} s: {e.label}')
+        """Apply fault events as ``ros2 param set`` would, on every node of the actuator that
+        reads the parameter (the ECU's GAP, CorM; the plant's everything else) -- never on the
+        monitor, which models the nominal actuator."""
+        for node in self.actuator:
+            mine = [e for e in events if e.param in node.physical]
+            if not mine:
+                continue
+            results = node.set_parameters([_ros_param_value(e.param, e.value) for e in mine])
+            for e, result in zip(mine, results):
+                if not result.successful:
+                    raise TwinError(f'fault {e.label} at {t_ns * 1e-9:.3f} s refused by '
+                                    f'{node.get_name()}: {result.reason}')
+                node.get_logger().info(f'fault injected at {t_ns * 1e-9:.3f} s: {e.label}')
+        unread = [e.label for e in events
+                  if not any(e.param in n.physical for n in self.actuator)]
+        if unread:
+            raise TwinError(f'fault {unread[0]} at {t_ns * 1e-9:.3f} s: no node of the twin '
+                            'reads its parameter')
 
     def _spin_until(self, done, k: int) -> None:
         deadline = time.monotonic() + TICK_DEADLINE_S
@@ -350,24 +290,14 @@ class Twin:
                                 'is missing (another graph on the same ROS_DOMAIN_ID?)')
 
     def _signals(self) -> dict[str, np.ndarray]:
-        """The 1 ms rows of ``simulate``'s CSV, from the recorded messages (P1, P2 NaN where
-        the model in force had no port pressures)."""
-        grid = None
-        cols: dict[str, dict[int, float]] = {}
-        for col in CSV_COLUMNS[1:] + PORT_COLUMNS:
-            times, values = self.recorder.values(col)
-            cols[col] = {t // OUTPUT_PERIOD_NS: v for t, v in zip(times, values)
-                         if t % OUTPUT_PERIOD_NS == 0}
-            if col not in PORT_COLUMNS:
-                keys = set(cols[col])
-                grid = keys if grid is None else grid & keys
-        rows = sorted(grid or ())
-        table = {'t': np.array(rows) * (OUTPUT_PERIOD_NS * 1e-9)}
-        for col, by_ms in cols.items():
-            if col in PORT_COLUMNS and not by_ms:
-                continue
-            table[col] = np.array([by_ms.get(ms, np.nan) for ms in rows])
-        return table
+        """The 1 ms rows of ``simulate``'s CSV from the recorded messages: the same builder the
+        bag reader uses (:func:`~..bag.table.signal_table`)."""
+        series = {}
+        for topic in self.recorder.float_topics:
+            times, values = self.recorder.values(topic)
+            if times:
+                series[f'/{topic}'] = (np.asarray(times, dtype=np.int64), np.asarray(values))
+        return signal_table(series)
 
     def close(self) -> None:
         """Finalize the bag, destroy the nodes, shut the context down; safe to call twice."""
@@ -392,8 +322,19 @@ class Twin:
         self.close()
 
 
+def _scenario_label(spec: Any, scenario: Scenario) -> str:
+    """What the schedule nodes' ``scenario`` parameter says: the name or file the twin was
+    given, or the scenario's own name when it was given as data."""
+    if isinstance(spec, (str, Path)):
+        return str(spec)
+    return scenario.name
+
+
 def _ros_param(name: str, params: EhaParams) -> Parameter:
-    return _ros_param_value(name, params.value(name))
+    """A node's ROS parameter for ``params``' value; a derived parameter left to its
+    derivation is 0.0, as the nodes declare it (so a fault on CLk still re-derives C4_alpha)."""
+    value = getattr(params, name)
+    return _ros_param_value(name, 0.0 if value is None else value)
 
 
 def _ros_param_value(name: str, value: Any) -> Parameter:
@@ -431,60 +372,3 @@ def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
         twin.close()
         for sig, handler in old.items():
             signal.signal(sig, handler)
-
-
-def main(args: Sequence[str] | None = None) -> int:
-    """``ros2 run servovalve_twin twin --ros-args -p valve_model:=C4 -p scenario:=paper
-    -p control_period:=0.001 [-p bag:=bags/my_run] [-p record:=false] [-p overwrite:=true]
-    [-p monitor:=C2]``; other ``-p NAME:=VALUE`` set physical parameters. Recording is on by
-    default, into ``bags/<scenario>_<valve_model>``."""
-    from rclpy.utilities import remove_ros_args
-    argv = list(sys.argv if args is None else args)
-    if remove_ros_args(argv)[1:]:
-        print('usage: twin --ros-args -p valve_model:=NAME -p scenario:=NAME|FILE '
-              '-p control_period:=S [-p bag:=DIR | -p record:=false] [-p overwrite:=true] '
-              '[-p monitor:=C2] [-p PARAM:=VALUE ...]', file=sys.stderr)
-        return 2
-    context = Context()
-    rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    cfg = Node('twin', context=context, allow_undeclared_parameters=True,
-               automatically_declare_parameters_from_overrides=True)
-    try:
-        values = {name: p.value for name, p in cfg.get_parameters_by_prefix('').items()}
-    finally:
-        cfg.destroy_node()
-    valve_model = values.pop('valve_model', 'C2')
-    scenario = values.pop('scenario', 'paper')
-    period = float(values.pop('control_period', 1e-3))
-    bag = values.pop('bag', '')
-    record = bool(values.pop('record', True))
-    overwrite = bool(values.pop('overwrite', False))
-    monitor = values.pop('monitor', '') or None
-    for builtin in ('use_sim_time', 'start_type_description_service'):
-        values.pop(builtin, None)                 # declared by every rclpy node
-    overrides = {k: v for k, v in values.items() if k in PARAM_NAMES}
-    unknown = sorted(set(values) - set(overrides))
-    try:
-        if unknown:
-            raise TwinError(f'unknown parameter {unknown[0]!r}')
-        scn = load_scenario(scenario)
-        if record and not bag:
-            bag = f'bags/{scn.name}_{valve_model}'
-        result = run_twin(valve_model, scn, overrides, control_period=period,
-                          bag=bag if record else None, context=context, keep_values=False,
-                          monitor=monitor, overwrite=overwrite)
-    except TwinError as exc:
-        print(f'twin: error: {exc}', file=sys.stderr)
-        return 2
-    finally:
-        rclpy.try_shutdown(context=context)
-    state = 'interrupted' if result.interrupted else 'done'
-    print(f'twin: {state}: {result.simulated_s:.3f} s simulated with {valve_model} in '
-          f'{result.wall_s:.2f} s (real-time factor '
-          f'{result.simulated_s / max(result.wall_s, 1e-9):.1f})'
-          + (f'; bag {result.bag}' if result.bag else ''))
-    return 130 if result.interrupted else 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -20,12 +20,12 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import TwinError
-from .physics.faults import FAULTS
-from .physics.monitor import ERROR, WARN, HealthConfig, monitor_run
-from .physics.params import PARAM_NAMES, make_params
-from .physics.scenario import load_scenario
-from .physics.simulate import simulate
+from ..config import load_scenario
+from ..errors import TwinError
+from ..physics.faults import FAULTS
+from ..physics.params import PARAM_NAMES, make_params
+from ..physics.simulate import simulate
+from .monitor import ERROR, WARN, HealthConfig, monitor_run
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,7 +93,7 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
     draws (``draws`` runs per fault in ``ranges``: name -> (lo, hi), severities uniform), plus
     ``nominal_runs`` fault-free runs. ``vary`` (name -> relative spread) draws every run's
     parameters uniformly in nominal*(1 +- spread): the nuisance a detector must tolerate."""
-    from .physics.simulate import effective_params
+    from ..physics.simulate import effective_params
     for name in list(faults or {}) + list(ranges or {}):
         if name not in FAULTS:
             raise TwinError(f'unknown fault {name!r}; expected one of {sorted(FAULTS)}')

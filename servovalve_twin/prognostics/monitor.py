@@ -20,9 +20,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .params import EhaParams
-from .scenario import Scenario
-from .simulate import RunResult, simulate
+from ..physics.params import EhaParams
+from ..physics.scenario import Scenario
+from ..physics.simulate import RunResult, simulate
+from ..physics.valves import get_monitor_model
 
 RESIDUALS = ('xj', 'dxj', 'p12')
 OK, WARN, ERROR = 0, 1, 2
@@ -33,9 +34,8 @@ LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR'}
 class HealthConfig:
     """Moving-RMS window [s] and thresholds, SI units (m, m/s, Pa).
 
-    The defaults are for a C2 monitor beside an HD plant: about 1.6 (warn) and 2.3 (error)
-    times C2's largest nominal indicator on the paper scenario (the models' own mismatch), so
-    that a healthy actuator does not alarm; :meth:`for_model` gives SQ's.
+    The field defaults are those of a C2 monitor beside an HD plant; :meth:`for_model` gives
+    each monitor model's own, from its registry entry (``monitor_thresholds``).
     """
 
     window: float = 0.05
@@ -51,13 +51,10 @@ class HealthConfig:
 
     @classmethod
     def for_model(cls, model: str) -> 'HealthConfig':
-        """Default thresholds for a monitor model: its nominal mismatch against HD sets them.
-        SQ follows HD ten times closer than C2 (README), so it gets ten times tighter ones:
-        2 (warn) and 3 (error) times its largest nominal indicator."""
-        if model == 'SQ':
-            return cls(warn_xj=1.0e-3, error_xj=1.5e-3, warn_dxj=0.015, error_dxj=0.022,
-                       warn_p12=1.3e6, error_p12=2.0e6)
-        return cls()
+        """Default thresholds of a monitor model: its nominal mismatch against HD sets them
+        (the registry entry's ``monitor_thresholds``); a model that may not serve as the
+        monitor is refused."""
+        return cls(**dict(get_monitor_model(model).monitor_thresholds or {}))
 
 
 def moving_rms(x: np.ndarray, n: int) -> np.ndarray:

@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import BagError, TwinError
 from ..physics.params import DEFAULTS, PARAM_NAMES, EhaParams
 from ..physics.scenario import Scenario, scenario_from_dict
-from .reader import BagRun, read_bag
+from ..bag.reader import BagRun, read_bag
 
 
 def scenario_from_bag(run: BagRun) -> Scenario:
@@ -60,8 +60,8 @@ def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path |
            **twin_kwargs) -> tuple[BagRun, Any, dict]:
     """Replay ``bag``; returns (the original, the new :class:`~..twin.TwinResult`, metrics of
     the new run against the original)."""
-    from ..compare import error_metrics
     from ..twin import run_twin
+    from .compare import error_metrics
     original = read_bag(bag)
     scenario = scenario_from_bag(original)
     model = valve_model or original.valve_model or 'C2'
@@ -83,22 +83,11 @@ def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin replay --ros-args -p bag:=bags/paper_HD [-p valve_model:=C2]
     [-p out:=DIR]``."""
     import rclpy
-    from rclpy.context import Context
-    from rclpy.node import Node
-    from rclpy.signals import SignalHandlerOptions
-    from ..compare import format_table
-    argv = list(sys.argv if args is None else args)
-    context = Context()
-    rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    cfg = Node('replay', context=context, allow_undeclared_parameters=True,
-               automatically_declare_parameters_from_overrides=True)
-    values = {n: p.value for n, p in cfg.get_parameters_by_prefix('').items()}
-    cfg.destroy_node()
-    unknown = sorted(set(values) - {'bag', 'valve_model', 'out', 'use_sim_time',
-                                    'start_type_description_service'})
+    from ..nodes.rosargs import init_context, ros_parameters
+    from .compare import format_table
+    context, _ = init_context(args)
     try:
-        if unknown:
-            raise TwinError(f'unknown parameter {unknown[0]!r}; expected bag, valve_model, out')
+        values = ros_parameters(context, 'replay', ('bag', 'valve_model', 'out'))
         if not values.get('bag'):
             raise TwinError('give the bag to replay: --ros-args -p bag:=DIR')
         _, result, metrics = replay(values['bag'], valve_model=values.get('valve_model') or None,

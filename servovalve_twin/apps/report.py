@@ -11,11 +11,13 @@ from pathlib import Path
 from typing import Any, Mapping
 
 
-from .compare import error_metrics, plot_overlay
-from .physics.characteristic import characteristic, plot_characteristic
-from .physics.params import make_params
-from .physics.simulate import RunResult, simulate
-from .physics.valves import VALVE_MODEL_NAMES
+from ..physics.characteristic import characteristic
+from ..physics.params import make_params
+from ..physics.simulate import RunResult
+from ..physics.valves import VALVE_MODEL_NAMES
+from ..runs import simulate
+from .compare import error_metrics
+from .plots import plot_characteristic, plot_overlay
 
 BEGIN, END = '<!-- results:begin -->', '<!-- results:end -->'
 BEYOND_BEGIN, BEYOND_END = '<!-- beyond:begin -->', '<!-- beyond:end -->'
@@ -79,7 +81,7 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
         body = readme.read_text(encoding='utf-8')
         for begin, end, section in ((BEGIN, END, text), (BEYOND_BEGIN, BEYOND_END, beyond)):
             if begin not in body or end not in body:
-                from .errors import TwinError
+                from ..errors import TwinError
                 raise TwinError(f'{readme} has no {begin} ... {end} section to replace')
             body = re.sub(re.escape(begin) + '.*?' + re.escape(end),
                           lambda _m, b=begin, e=end, t=section: f'{b}\n{t}\n{e}', body,
@@ -90,7 +92,7 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
 
 _COST_CHILD = """
 import sys
-from servovalve_twin.physics.simulate import simulate
+from servovalve_twin.runs import simulate
 simulate(sys.argv[1])
 print(min(simulate(sys.argv[1]).info['wall_s'] for _ in range(7)) / 100000 * 1e6)
 """
@@ -111,7 +113,7 @@ def step_cost_us(model: str, processes: int = 3) -> float:
 
 def beyond_report(out_dir: Path) -> str:
     """Issue 6: SQ against C1, C2, C3 on three scenarios, errors against HD and step cost."""
-    from .physics.scenario import load_scenario
+    from ..config import load_scenario
     out_dir.mkdir(parents=True, exist_ok=True)
     cost = {m: step_cost_us(m) for m in BEYOND_MODELS}
     lines = ['| scenario | model | XJ rms / max [mm] | DXJ rms / max [mm/s] | P12 rms / max [MPa] '

@@ -1,5 +1,6 @@
-"""The high-fidelity (HD) four-edge servovalve reference (MODELS.md section 3) and the
-calibration of the simplified models' gains from it.
+"""``HD``: the high-fidelity four-edge servovalve reference (MODELS.md section 3) -- its
+solver, its initial state, its hand-over when switched to mid-run and its diagnostics. The
+calibration of the simplified models from it is :mod:`.calibration`.
 
 Edges (lap L > 0 overlap, < 0 underlap): ``x_S1 = XS - L_S1``, ``x_2R = XS - L_2R``,
 ``x_S2 = -XS - L_S2``, ``x_1R = -XS - L_1R``. Each passage is a turbulent orifice of width w
@@ -24,10 +25,10 @@ import math
 import numpy as np
 from numba import njit
 
-from ..errors import ModelError
-from .params import EhaParams
-from .valve_state import (V_CALLS, V_CAV, V_FAIL, V_ITER, V_MAXITER, V_NCAV, V_P1, V_P2,
-                           V_P12, V_XJ, new_state)
+from ...errors import ModelError
+from ..params import EhaParams
+from ..valve_state import (V_CALLS, V_CAV, V_FAIL, V_ITER, V_MAXITER, V_NCAV, V_NONCONV, V_P1,
+                           V_P2, V_P12, V_XJ, new_state)
 
 _TOL = 1.0e-4          # Pa: Newton converges quadratically, so the last step is far below this
 _NEWTON_MAX = 60
@@ -250,45 +251,23 @@ def hd_ports(xs: float, qj: float, psr: float, params: EhaParams,
     return p12, vs[V_P1], vs[V_P2], vs
 
 
-def _bisect(fn, lo: float, hi: float, target: float, n: int = 200) -> float:
-    """x in [lo, hi] with fn(x) = target for an increasing fn (used only by the calibration)."""
-    flo = fn(lo) - target
-    fhi = fn(hi) - target
-    if flo * fhi > 0:
-        raise ModelError(f'calibration: target {target:g} not bracketed in [{lo:g}, {hi:g}]')
-    for _ in range(n):
-        mid = 0.5 * (lo + hi)
-        fm = fn(mid) - target
-        if (fm > 0) == (fhi > 0):
-            hi, fhi = mid, fm
-        else:
-            lo, flo = mid, fm
-        if hi - lo <= 1e-15 * max(abs(lo), abs(hi), 1e-30):
-            break
-    return 0.5 * (lo + hi)
+def hd_initial_state(params: EhaParams, xj: float = 0.0) -> np.ndarray:
+    """HD at rest: both ports at (PS + PR)/2 = PR + PSRN/2 (P12 = 0), the Newton's warm start."""
+    vs = new_state(params.PR + 0.5 * params.PSRN)
+    vs[V_XJ] = xj
+    return vs
 
 
-def calibrate(params: EhaParams) -> dict[str, float]:
-    """XSS, GPN, GQN, GPQ, k of the simplified models from the leak-free HD valve (MODELS.md
-    section 3): the simplified models add leakage themselves through k = CLk*GPQ.
+def hd_handover(vs: np.ndarray, old_vs: np.ndarray, old_has_ports: bool) -> None:
+    """Switched to HD mid-run: keep the last P12, and the port pressures when the model before
+    had them (HD itself); otherwise the ports start from mid-pressure as at rest."""
+    vs[V_P12] = old_vs[V_P12]
+    if old_has_ports:
+        vs[V_P1] = old_vs[V_P1]
+        vs[V_P2] = old_vs[V_P2]
 
-    - XSS from the mean slope of the zero-flow P12(XS) curve between -40 % and +40 % of PSRN:
-      GP = 0.8*PSRN/(x(+40 %) - x(-40 %)), XSS = PSRN/GP;
-    - GQN = QJ(XSM, P12 = 0)/XSM at PSRN; GPQ = GP/GQN; k = CLk*GPQ with the given CLk.
-    """
-    leak_free = params.replace(CLk=0.0, compressible=False)
-    psrn = params.PSRN
 
-    def p12_of_xs(xs):
-        return hd_ports(xs, 0.0, psrn, leak_free)[0]
-
-    x_pos = _bisect(p12_of_xs, -params.XSM, params.XSM, 0.4 * psrn)
-    x_neg = _bisect(p12_of_xs, -params.XSM, params.XSM, -0.4 * psrn)
-    gp = 0.8 * psrn / (x_pos - x_neg)
-    xss = psrn / gp
-    q_max = 4.0 * params.Cd * params.w * params.XSM * math.sqrt(2.0 * psrn / params.rho)
-    # P12 falls as QJ grows: bisect on -P12
-    qj0 = _bisect(lambda q: -hd_ports(params.XSM, q, psrn, leak_free)[0], 0.0, q_max, 0.0)
-    gqn = qj0 / params.XSM
-    gpq = gp / gqn
-    return dict(XSS=xss, GPN=gp, GQN=gqn, GPQ=gpq, k=params.CLk * gpq)
+def hd_info(vs: np.ndarray) -> dict:
+    """Diagnostics of HD's last call: Newton iterations, port pressures, cavitation flags."""
+    return dict(iterations=int(vs[V_ITER]), nonconverged_calls=int(vs[V_NONCONV]),
+                p1=float(vs[V_P1]), p2=float(vs[V_P2]), cavitation=int(vs[V_CAV]))

@@ -1,0 +1,89 @@
+"""The twin's recorder: every message its nodes publish, taken at the moment of publishing and
+written with the tick's simulated time; Float64 values buffered and packed per topic."""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Mapping
+
+from .cdr import ENCODERS
+from .writer import BagWriter
+
+
+class Recorder:
+    """``types``: topic (absolute, '/xj') -> ROS type name ('std_msgs/msg/Float64').
+
+    Takes every message the twin's nodes publish, at the moment they publish it (their
+    ``tap``), and writes it to the bag with the tick's simulated time as log and publish time,
+    as exact CDR wire bytes (:mod:`.bag.cdr`; the tests check them against raw subscriptions).
+    Float64 values are buffered and packed per topic at each flush, every ``flush_ns`` of
+    simulated time, so a killed run loses at most that much. The values are also what ``--out``
+    writes as the CSV of the ROS run's own messages."""
+
+    def __init__(self, writer: BagWriter | None, types: Mapping[str, str], *,
+                 keep_values: bool, flush_ns: int = 50_000_000):
+        self.writer = writer
+        self.keep_values = keep_values
+        self.now_ns = 0
+        self.flush_ns = flush_ns
+        self._flushed_ns = 0
+        self.on_flush: Callable[[float], None] | None = None   # called with the flushed time
+        self.types = dict(types)
+        self.encoders = {topic: ENCODERS[tn] for topic, tn in self.types.items()}
+        float_topics = [t for t, tn in self.types.items() if tn == 'std_msgs/msg/Float64']
+        # per Float64 topic: times and values not yet written; all of them when keep_values
+        self._pending = {t[1:]: ([], []) for t in float_topics}
+        self.float_topics = tuple(self._pending)
+        self._written = {t[1:]: 0 for t in float_topics}
+        self._other = 0
+        if writer is not None:
+            for topic, type_name in self.types.items():
+                writer.add_topic(topic, type_name)
+
+    def record(self, topic: str, msg: Any) -> None:
+        """The nodes' tap: ``topic`` as the node names it (relative: 'xj', or '/clock')."""
+        pending = self._pending.get(topic)
+        if pending is not None:
+            pending[0].append(self.now_ns)
+            pending[1].append(msg.data)
+        elif self.writer is not None:
+            name = topic if topic[0] == '/' else '/' + topic
+            self.writer.write(name, self.encoders[name](msg), self.now_ns)
+        else:
+            self._other += 1
+
+    def tick_done(self) -> None:
+        """Called after each tick: flush every ``flush_ns`` of simulated time."""
+        if self.now_ns - self._flushed_ns >= self.flush_ns:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered Float64 values (if recording) and drop what is not kept: a long
+        run without a bag or ``keep_values`` does not grow in memory."""
+        self._flushed_ns = self.now_ns
+        for topic, (times, values) in self._pending.items():
+            start = self._written[topic]
+            if self.writer is not None:
+                self.writer.write_float64('/' + topic, times[start:], values[start:])
+            if self.keep_values:
+                self._written[topic] = len(times)
+            else:
+                if self.writer is None:
+                    self._other += len(times)
+                times.clear()
+                values.clear()
+        if self.writer is None:
+            return
+        self.writer.flush()
+        if self.on_flush is not None:
+            self.on_flush(self.now_ns * 1e-9)
+
+    def values(self, topic: str) -> tuple[list[int], list[float]]:
+        return self._pending[topic]
+
+    @property
+    def count(self) -> int:
+        """Messages recorded so far."""
+        if self.writer is not None:
+            return sum(self.writer.counts.values()) + sum(
+                len(t) - self._written[k] for k, (t, _) in self._pending.items())
+        return self._other + sum(len(t) for t, _ in self._pending.values())
