@@ -1,4 +1,4 @@
-"""Launch the EHA twin's four nodes as separate processes sharing simulated time.
+"""Launch the EHA twin's nodes as separate processes sharing simulated time.
 
     ros2 launch servovalve_twin twin.launch.py valve_model:=HD scenario:=paper rate:=1.0
 
@@ -20,6 +20,8 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
+from servovalve_twin.physics.valves import VALVE_MODEL_NAMES      # the one registry
+
 
 def generate_launch_description():
     share = get_package_share_directory('servovalve_twin')
@@ -32,8 +34,7 @@ def generate_launch_description():
               'control_period': ParameterValue(period, value_type=float)}
     return LaunchDescription([
         DeclareLaunchArgument('valve_model', default_value='C2',
-                              description='linear, saturated, saturated_downstream, '
-                                          'linear_leakage, A, B, C1, C2, C3, C4, HD'),
+                              description=', '.join(VALVE_MODEL_NAMES)),
         DeclareLaunchArgument('scenario', default_value='paper',
                               description='built-in scenario name or YAML file'),
         DeclareLaunchArgument('rate', default_value='1.0',

@@ -120,8 +120,20 @@ def test_rosbag2_layout(hd_bag):
             assert ch.message_encoding == 'cdr'
             assert set(ch.metadata) == {'offered_qos_profiles', 'topic_type_hash'}
             assert ch.metadata['topic_type_hash'].startswith('RIHS01_')
-            assert yaml.safe_load(ch.metadata['offered_qos_profiles'])[0]['reliability'] == \
-                'reliable'
+            # every field of the v9 profile as `ros2 bag record` writes it (BAGS.md 5.2): the
+            # offered QoS seen through discovery has history unknown and depth 0
+            infinite = {'sec': 9223372036, 'nsec': 854775807}
+            assert yaml.safe_load(ch.metadata['offered_qos_profiles']) == [{
+                'history': 'unknown', 'depth': 0, 'reliability': 'reliable',
+                'durability': 'volatile', 'deadline': infinite, 'lifespan': infinite,
+                'liveliness': 'automatic', 'liveliness_lease_duration': infinite,
+                'avoid_ros_namespace_conventions': False}]
+        # rosbag2 stamps publish_time; the twin's is the tick's simulated time, the log time
+        n = 0
+        for _, _, message in reader.iter_messages():
+            assert message.publish_time == message.log_time
+            n += 1
+        assert n == meta['message_count']
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     embedded = yaml.safe_load(metadata['rosbag2']['serialized_metadata'])
     assert embedded['message_count'] == meta['message_count']
@@ -234,6 +246,13 @@ def test_killed_run_is_recovered_by_reindex(tmp_path):
         read_bag(bag)
     assert main(['reindex', str(bag)]) == 0
     run = read_bag(bag)
+    # the provenance record survives: without it replay would fall back to C2 with defaults
+    assert run.valve_model == 'C2' and run.control_period == 1e-3
+    assert run.params()['M'] == 500.0 and run.scenario()['duration'] == 60.0
+    from mcap.reader import make_reader
+    with open(next(bag.glob('*.mcap')), 'rb') as fh:
+        names = [m.name for m in make_reader(fh).iter_metadata()]
+    assert sorted(names) == ['rosbag2', 'servovalve_twin']    # rebuilt, not duplicated
     last = run.series['/xj'][0][-1] * 1e-9
     print(f'killed after the flush at {flushed:.3f} s of simulated time; recovered up to '
           f'{last:.3f} s')

@@ -44,6 +44,11 @@ def test_simulate_hd_adds_port_pressures_and_params_apply(tmp_path):
     (['simulate', '--valve-model', 'C2'], 'required: --out'),
     (['characteristic', '--valve-model', 'HD', '--qj', '1,x', '--out', 'x.csv'],
      'comma-separated'),
+    # the OSError path: an output that cannot be written is one line, not a traceback
+    (['simulate', '--valve-model', 'C2', '--out', 'no_such_dir/x.csv'],
+     'No such file or directory: no_such_dir/x.csv'),
+    (['characteristic', '--valve-model', 'C2', '--qj', '0', '--out', 'no_such_dir/c.csv'],
+     'No such file or directory: no_such_dir/c.csv'),
 ])
 def test_bad_input_exit_2_with_one_line(args, fragment, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
@@ -52,6 +57,7 @@ def test_bad_input_exit_2_with_one_line(args, fragment, tmp_path, monkeypatch, c
     assert exc_info.value.code == 2
     err = capsys.readouterr().err
     assert fragment in err and err.count('\n') == 1, err
+    assert 'Traceback' not in err
     assert not (tmp_path / 'x.csv').exists()
 
 

@@ -81,3 +81,56 @@ def test_compressible_variant_tracks_the_incompressible_one():
           f'peak P12 {com["p12"].max() / 1e6:.2f} vs {inc["p12"].max() / 1e6:.2f} MPa')
     assert d.max() < 2e-3
     assert not np.array_equal(com['p12'], inc['p12'])
+
+
+def _edge_flow(x, dp, p):
+    """An edge's flow, written from MODELS.md section 3 independently of the compiled solver:
+    orifice (opening from corner to bore) in series with a laminar gap when covered,
+    dp = R_l*Q + R_t*Q*|Q| solved by the quadratic formula."""
+    if x >= -p.r:
+        d = math.hypot(x + p.r, p.c + p.r) - p.r
+        gap = 0.0
+    else:
+        d, gap = p.c, -x - p.r
+    rl = 12.0 * p.mu * gap / (p.w * p.c ** 3)
+    rt = p.rho / (2.0 * (p.Cd * p.w * d) ** 2)
+    a = abs(dp)
+    q = a / rl if rt == 0 else (-rl + math.sqrt(rl * rl + 4.0 * rt * a)) / (2.0 * rt)
+    return math.copysign(q, dp)
+
+
+def _continuity(xs, qj, psr, p, p1, p2):
+    ps, pr = psr + p.PR, p.PR
+    leak = p.CLk * (p1 - p2)
+    f1 = _edge_flow(xs - p.L_S1, ps - p1, p) - _edge_flow(-xs - p.L_1R, p1 - pr, p) - qj - leak
+    f2 = _edge_flow(-xs - p.L_S2, ps - p2, p) - _edge_flow(xs - p.L_2R, p2 - pr, p) + qj + leak
+    return f1, f2
+
+
+@pytest.mark.parametrize('xs, frac', [(0.0, 0.0), (3e-6, 0.0), (2e-5, 0.4), (1.5e-4, 0.8),
+                                      (-6e-5, -0.5), (1e-5, -0.3)])
+def test_port_pressures_satisfy_both_continuity_equations(xs, frac):
+    """HD's converged P1, P2 against the continuity equations evaluated independently: both
+    residuals vanish to 1e-9 of the largest edge flow; and, leak-free (the ports decouple), P1
+    equals a 200-step bisection of port 1's own equation to 1 Pa."""
+    psr = 20e6
+    for clk in (DEFAULTS.CLk, 0.0):
+        p = DEFAULTS.replace(CLk=clk, L_S1=2e-6, L_2R=-1e-6)        # laps make it asymmetric
+        qj = frac * p.Cd * p.w * max(abs(xs), 1e-5) * math.sqrt(psr / p.rho)
+        _, p1, p2, vs = hd_ports(xs, qj, psr, p)
+        if vs[6]:                                  # a cavitating port is clamped, not solved
+            continue
+        scale = p.Cd * p.w * p.XSM * math.sqrt(2 * psr / p.rho)
+        f1, f2 = _continuity(xs, qj, psr, p, p1, p2)
+        print(f'XS={xs:g} QJ={qj:.3g} CLk={clk:g}: P1={p1:.6g} P2={p2:.6g} residuals '
+              f'{f1 / scale:.1e} {f2 / scale:.1e}')
+        assert abs(f1) < 1e-9 * scale and abs(f2) < 1e-9 * scale
+        if clk == 0.0:
+            lo, hi = p.PR - psr, p.PR + 3 * psr            # over-pressure allowed
+            for _ in range(200):
+                mid = 0.5 * (lo + hi)
+                if _continuity(xs, qj, psr, p, mid, p2)[0] > 0:
+                    lo = mid
+                else:
+                    hi = mid
+            assert p1 == pytest.approx(0.5 * (lo + hi), abs=1.0)

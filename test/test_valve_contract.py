@@ -85,3 +85,78 @@ def test_whole_paper_scenario_runs(model):
         assert np.all(np.isfinite(r[c])), c
     assert np.all(np.abs(r['xj']) <= DEFAULTS.XJM)
     print(model.name, 'XJ(1 s) =', r['xj'][-1], 'm', r.info)
+
+
+SHORT = {'duration': 0.06, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.03, 8000.0]],
+         'psr': [[0.0, 2.0e7], [0.045, 1.2e7]]}
+
+
+def test_stateful_plant_equals_simulate(model):
+    """The ROS plant's physics (EhaPlant, one control period per call, the ECU from Python)
+    gives simulate's sampled-ECU run bit for bit, for every registered model."""
+    from servovalve_twin.physics.simulate import EhaPlant
+    ref = simulate(model.name, SHORT, ecu_period=1e-3)
+    plant = EhaPlant(model.name, DEFAULTS)
+    xj = []
+    for i, (com, fr, psr) in enumerate(zip(ref['com'], ref['fr'], ref['psr'])):
+        xj.append(plant.xj)
+        cor = plant.control(com, plant.xj)
+        plant.tick(cor, fr, psr, 100 if i < len(ref['t']) - 1 else 0)
+    np.testing.assert_array_equal(xj, ref['xj'])
+
+
+def test_mid_run_switch_to_and_from_the_model(model):
+    """Switched to mid-run, a model keeps the mechanical state and answers from it: its first
+    P12 is what the model computes at that state from Python; switched away, the other model
+    continues from the same state too."""
+    from servovalve_twin.physics.servovalve import S_DXJ, S_XS
+    from servovalve_twin.physics.simulate import EhaPlant
+    other = 'HD' if model.name != 'HD' else 'C2'
+    plant = EhaPlant(other, DEFAULTS)
+    for _ in range(30):
+        plant.tick(plant.control(0.02, plant.xj), 8000.0, 2e7, 100)
+    for target in (model.name, other):
+        before = plant.s.copy()
+        plant.set_valve_model(target)
+        np.testing.assert_array_equal(plant.s, before)
+        vs = plant.vs.copy()
+        p12 = plant.tick(plant.control(0.02, plant.xj), 8000.0, 2e7, 100)[0]
+        expected = VALVE_MODELS[target](before[S_XS], DEFAULTS.AJ * before[S_DXJ], 2e7,
+                                        DEFAULTS, vs)[0]
+        assert p12 == pytest.approx(expected, rel=1e-9, abs=1e-3)
+        assert np.isfinite(plant.xj)
+
+
+def test_short_twin_run_and_its_bag(model, ros_context, tmp_path):
+    """One short ROS twin run per model: it equals simulate, its bag reads back the same
+    table, P1/P2 are there exactly when the model has port pressures, the provenance names
+    the model."""
+    from servovalve_twin.bag.reader import read_bag
+    from servovalve_twin.twin import run_twin
+    result = run_twin(model.name, SHORT, context=ros_context, handle_signals=False,
+                      bag=tmp_path / model.name)
+    ref = simulate(model.name, SHORT, ecu_period=1e-3)
+    bag = read_bag(tmp_path / model.name)
+    assert set(bag.signals) == set(ref.columns) == set(result.signals)
+    assert ({'p1', 'p2'} <= set(bag.signals)) == model.has_ports
+    for col in ref.columns:
+        np.testing.assert_array_equal(result.signals[col], ref[col], err_msg=col)
+        np.testing.assert_array_equal(bag.signals[col], ref[col], err_msg=col)
+    assert bag.valve_model == model.name
+
+
+def test_entry_is_consistent(model):
+    """What an entry declares holds: a monitor model has ordered default thresholds, a model
+    with port pressures fills them, constants fit the kernel."""
+    from servovalve_twin.physics.params import N_VALVE_CONSTANTS
+    from servovalve_twin.prognostics.monitor import HealthConfig
+    assert len(model.constants(DEFAULTS)) <= N_VALVE_CONSTANTS
+    if model.monitor:
+        HealthConfig.for_model(model.name)          # validates the thresholds' order
+    else:
+        with pytest.raises(ModelError):
+            HealthConfig.for_model(model.name)
+    _, vs, info = model(2e-5, 1e-5, 2e7, DEFAULTS)
+    if model.has_ports:
+        assert np.isfinite(info['p1']) and np.isfinite(info['p2'])
+        assert info['p1'] - info['p2'] == pytest.approx(model(2e-5, 1e-5, 2e7, DEFAULTS)[0])

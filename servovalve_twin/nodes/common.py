@@ -321,6 +321,19 @@ def validation_result(fn: Callable[[], Any]) -> SetParametersResult:
 
 # -- standalone entry point -----------------------------------------------------------------
 
+def describe(node: Node) -> str:
+    """What a node runs with, in one line: its models, control period and time source."""
+    parts = []
+    for name in ('valve_model', 'monitor_model', 'scenario'):
+        if node.has_parameter(name):
+            parts.append(f'{name} {node.get_parameter(name).value}')
+    if node.has_parameter('control_period'):
+        parts.append(f'control period {node.get_parameter("control_period").value:g} s')
+    sim = node.get_parameter('use_sim_time').value
+    parts.append('simulated time (/clock)' if sim else 'wall time')
+    return ', '.join(parts)
+
+
 def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Jazzy's idiom for a node run alone (``ros2 run`` / console script): SIGINT and SIGTERM
     end it cleanly; bad parameters at start-up are one line and exit code 2.
@@ -344,6 +357,9 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
         node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
+        # one start-up line; it also tells a supervisor (and the tests) that the signal
+        # handlers are in place and the node is up
+        node.get_logger().info('started: ' + describe(node))
         while rclpy.ok() and not stop:
             executor.spin_once(timeout_sec=0.1)
     except ExternalShutdownException:

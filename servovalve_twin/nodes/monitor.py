@@ -87,6 +87,9 @@ class Monitor(TwinNode):
     def check_parameters(self, changes: dict[str, Any]) -> None:
         if 'monitor_model' in changes:
             get_monitor_model(changes['monitor_model'])
+        if any(f in changes for f in HEALTH_FIELDS):
+            HealthConfig(**{f: float(changes.get(f, self.get_parameter(f).value))
+                            for f in HEALTH_FIELDS})          # thresholds ordered, window > 0
         super().check_parameters(changes)
 
     def on_params(self, params: EhaParams) -> None:

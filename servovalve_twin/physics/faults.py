@@ -75,7 +75,7 @@ FAULTS: dict[str, FaultSpec] = {f.name: f for f in (
               'slower, the valve bandwidth falls', 0.9),
     FaultSpec('clearance_growth', 'c', 'scale', 1.0, 5.0, 'x c',
               'radial clearance of the spool grows (erosion); HD valve only: softer null, more '
-              'null leakage', 3.0),
+              'null leakage', 3.5),
 )}
 
 

@@ -60,8 +60,9 @@ class EhaParams:
     # ECU
     GAP: float = _p(1.69, 'A/m', 0.0, 1.0e6, 'position-loop gain', lo_open=True, group='ecu',
                     readers=('ecu',))
+    # CorM is read by the plant too: the torque-motor gain GM derives from it (KFB*XSM/CorM)
     CorM: float = _p(0.01, 'A', 0.0, 10.0, 'servovalve current saturation', lo_open=True,
-                     group='ecu', readers=('ecu',))
+                     group='ecu', readers=('ecu', 'plant'))
     CorB: float = _p(0.0, 'A', -10.0, 10.0, 'valve null bias current (fault), added after '
                      'the ECU saturation, in the torque motor', group='servovalve')
     # servovalve mechanics

@@ -18,7 +18,8 @@ V_NCAV = 7      # number of calls with a cavitating port
 V_FAIL = 8      # 1 when a model could not compute a value (HD solver failure): an error
 V_XJ = 9        # jack position [m] written by the plant before each call (compressible HD)
 V_CALLS = 10    # number of calls since reset
-VS_SIZE = 11
+V_ITSUM = 11    # iterations summed over the calls since reset (mean = V_ITSUM/V_CALLS)
+VS_SIZE = 12
 
 
 def new_state(ps_mid: float = np.nan) -> np.ndarray:

@@ -20,6 +20,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ..errors import TwinError
 from ..physics.params import EhaParams
 from ..physics.scenario import Scenario
 from ..physics.simulate import RunResult, simulate
@@ -45,6 +46,16 @@ class HealthConfig:
     error_dxj: float = 0.18
     warn_p12: float = 6.0e6
     error_p12: float = 9.0e6
+
+    def __post_init__(self):
+        if not (math.isfinite(self.window) and self.window > 0):
+            raise TwinError(f'monitor window must be a positive number of seconds, got '
+                            f'{self.window!r}')
+        for sig in RESIDUALS:
+            warn, err = self.thresholds(sig)
+            if not (0.0 <= warn <= err):
+                raise TwinError(f'monitor thresholds: need 0 <= warn_{sig} <= error_{sig}, got '
+                                f'warn_{sig} = {warn!r}, error_{sig} = {err!r}')
 
     def thresholds(self, sig: str) -> tuple[float, float]:
         return getattr(self, f'warn_{sig}'), getattr(self, f'error_{sig}')

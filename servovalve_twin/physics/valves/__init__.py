@@ -37,8 +37,8 @@ import numpy as np
 
 from ...errors import ModelError
 from ..params import EhaParams
-from ..valve_state import (V_CALLS, V_FAIL, V_MAXITER, V_NCAV, V_NONCONV, V_P12, V_XJ, VS_SIZE,
-                           new_state)
+from ..valve_state import (V_CALLS, V_FAIL, V_ITSUM, V_MAXITER, V_NCAV, V_NONCONV, V_P12,
+                           V_XJ, VS_SIZE, new_state)
 from . import hd as _hd
 from . import orifice as _sq
 from . import simplified as _s
@@ -131,7 +131,9 @@ class ValveModel:
         did not converge, calls with a cavitating port."""
         if not self.iterative:
             return {}
-        return dict(valve_calls=int(vs[V_CALLS]), max_iterations=int(vs[V_MAXITER]),
+        calls = int(vs[V_CALLS])
+        return dict(valve_calls=calls, max_iterations=int(vs[V_MAXITER]),
+                    mean_iterations=float(vs[V_ITSUM]) / calls if calls else 0.0,
                     nonconverged_calls=int(vs[V_NONCONV]), cavitating_calls=int(vs[V_NCAV]))
 
 

@@ -27,8 +27,8 @@ from numba import njit
 
 from ...errors import ModelError
 from ..params import EhaParams
-from ..valve_state import (V_CALLS, V_CAV, V_FAIL, V_ITER, V_MAXITER, V_NCAV, V_NONCONV, V_P1,
-                           V_P2, V_P12, V_XJ, new_state)
+from ..valve_state import (V_CALLS, V_CAV, V_FAIL, V_ITER, V_ITSUM, V_MAXITER, V_NCAV,
+                           V_NONCONV, V_P1, V_P2, V_P12, V_XJ, new_state)
 
 _TOL = 1.0e-4          # Pa: Newton converges quadratically, so the last step is far below this
 _NEWTON_MAX = 60
@@ -234,6 +234,7 @@ def hd_solve(xs, qj, psr, P, vs):
     if cav:
         vs[V_NCAV] += 1
     vs[V_CALLS] += 1
+    vs[V_ITSUM] += it
     if not ok:
         vs[V_FAIL] = 1.0
     return p1 - p2

@@ -16,7 +16,7 @@ CLk*GPQ`` is the gain of the leakage loop, whose instantaneous form is solved in
 
 from numba import njit
 
-from ..valve_state import V_CALLS, V_ITER, V_MAXITER, V_NONCONV, V_P12
+from ..valve_state import V_CALLS, V_ITER, V_ITSUM, V_MAXITER, V_NONCONV, V_P12
 
 
 @njit(cache=True, inline='always')
@@ -119,6 +119,7 @@ def model_c4(xs, qj, psr, P, vs):
     if not converged:
         vs[V_NONCONV] += 1
     vs[V_CALLS] += 1
+    vs[V_ITSUM] += it
     return p
 
 
