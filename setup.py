@@ -19,7 +19,8 @@ setup(
         ('share/' + package_name + '/config/scenarios', glob('config/scenarios/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
-    install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'matplotlib'],
+    install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'zstandard', 'lz4',
+                      'matplotlib'],
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='servovalve_twin maintainers',
@@ -38,6 +39,7 @@ setup(
             'monitor = servovalve_twin.nodes.monitor:main',
             'twin = servovalve_twin.twin.executable:main',
             'replay = servovalve_twin.apps.replay:main',
+            'player = servovalve_twin.nodes.player:main',
         ],
     },
 )

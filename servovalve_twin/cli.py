@@ -232,6 +232,35 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 130 if result.interrupted else 0
 
 
+def cmd_play(args: argparse.Namespace) -> int:
+    import signal
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+    from .nodes.player import PlayOptions, play
+    opts = PlayOptions(rate=args.rate, clock=args.clock, topics=tuple(args.topics),
+                       exclude_topics=tuple(args.exclude_topics), loop=args.loop,
+                       delay=args.delay, start_offset=args.start_offset,
+                       playback_duration=args.playback_duration,
+                       start_paused=args.start_paused, remap=tuple(args.remap))
+    opts.check()
+    stop = []
+    old = {sig: signal.signal(sig, lambda *_: stop.append(True))
+           for sig in (signal.SIGINT, signal.SIGTERM)}
+    context = Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        result = play(args.bag, opts, context=context, stop=lambda: bool(stop))
+    finally:
+        rclpy.try_shutdown(context=context)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    state = 'stopped' if stop else 'done'
+    print(f'play: {state}: {result["published"]} messages in {result["wall_s"]:.2f} s '
+          f'(bag {result["bag_duration_s"]:.3f} s at rate {args.rate:g})')
+    return 0
+
+
 def cmd_reindex(args: argparse.Namespace) -> int:
     from .bag.reindex import reindex
     meta = reindex(args.bag)
@@ -399,6 +428,30 @@ def build_parser() -> argparse.ArgumentParser:
     _add_param_options(p)
     p.add_argument('--out', required=True, metavar='DIR')
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser('play', help='put a rosbag2 bag (MCAP or sqlite3, any version) back on '
+                                    'the ROS graph, like ros2 bag play')
+    p.add_argument('bag', metavar='BAG', help='bag directory, .mcap or .db3 file')
+    p.add_argument('-r', '--rate', type=_positive_float, default=1.0, metavar='FACTOR',
+                   help='playback rate (wall pacing; default 1.0)')
+    p.add_argument('--clock', type=_positive_float, nargs='?', const=40.0, default=0.0,
+                   metavar='HZ', help='publish /clock from the bag time (default 40 Hz when '
+                   'given); the bag\'s own /clock is then not republished')
+    p.add_argument('--topics', nargs='+', default=[], metavar='T', help='play only these')
+    p.add_argument('--exclude-topics', nargs='+', default=[], metavar='T',
+                   help='do not play these')
+    p.add_argument('-l', '--loop', action='store_true', help='play again from the start')
+    p.add_argument('-d', '--delay', type=float, default=0.0, metavar='S',
+                   help='wall time to wait before playing')
+    p.add_argument('--start-offset', type=float, default=0.0, metavar='S',
+                   help='start this far into the bag')
+    p.add_argument('--playback-duration', type=float, default=0.0, metavar='S',
+                   help='play only this much bag time (default: to the end)')
+    p.add_argument('-p', '--start-paused', action='store_true',
+                   help='start paused (resume with the ~/resume service)')
+    p.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO',
+                   help='publish topic FROM as TO')
+    p.set_defaults(func=cmd_play)
 
     p = sub.add_parser('faults', help='list the injectable faults')
     p.set_defaults(func=cmd_faults)

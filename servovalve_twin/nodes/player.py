@@ -1,0 +1,329 @@
+"""The bag player: puts a recorded rosbag2 bag back on the ROS graph, modelled on
+``ros2 bag play`` (rosbag2 is C++ and not on PyPI).
+
+Every recorded message is published on its topic with its recorded type, in log-time order, as
+the exact recorded CDR bytes (rclpy publishes serialized bytes as they are), with the recorded
+reliability and durability where the bag has them (v9 names or the older integers) and
+reliable/volatile otherwise; history keep-last 10 (a bag records the *offered* QoS, whose history
+is ``unknown``; keep-all where the recording says so). Pacing is wall time divided by ``rate``.
+
+With ``clock`` > 0, ``/clock`` follows the bag time at that many messages per wall second (the
+bag's own ``/clock`` is then not republished), so nodes with ``use_sim_time`` follow the bag.
+
+Services (std_srvs/Trigger; rosbag2's names): ``~/pause``, ``~/resume``, ``~/toggle_paused``,
+``~/play_next`` (publishes one message while paused; ``success`` false at the end of the bag),
+``~/is_paused`` (``success`` is whether playback is paused).
+
+Parameters (read-only, the ``ros2 bag play`` option names): ``bag``, ``rate``, ``clock`` (Hz, 0 =
+off), ``topics``, ``exclude_topics`` (string arrays), ``loop``, ``delay``, ``start_offset``,
+``playback_duration`` (s; 0 = to the end), ``start_paused``, ``remap`` (``FROM:=TO`` strings).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from typing import Sequence
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
+
+from ..bag.anybag import AnyBag, open_any_bag
+from ..errors import BagError, TwinError
+from .clock import clock_msg
+
+_RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
+                'best_effort': ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
+               'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
+
+
+@dataclasses.dataclass
+class PlayOptions:
+    """What ``ros2 bag play`` takes, with its option names."""
+
+    rate: float = 1.0
+    clock: float = 0.0                  # Hz of /clock from the bag time; 0 = off
+    topics: tuple[str, ...] = ()
+    exclude_topics: tuple[str, ...] = ()
+    loop: bool = False
+    delay: float = 0.0
+    start_offset: float = 0.0
+    playback_duration: float = 0.0      # 0 = to the end
+    start_paused: bool = False
+    remap: tuple[str, ...] = ()         # FROM:=TO
+
+    def check(self) -> None:
+        if not (self.rate > 0 and self.rate < float('inf')):
+            raise TwinError(f'rate must be a positive factor, got {self.rate!r}')
+        if not self.clock >= 0:
+            raise TwinError(f'clock must be >= 0 Hz (0 = no /clock), got {self.clock!r}')
+        for name in ('delay', 'start_offset', 'playback_duration'):
+            if not getattr(self, name) >= 0:
+                raise TwinError(f'{name} must be >= 0 s, got {getattr(self, name)!r}')
+        self.remaps()
+
+    def remaps(self) -> dict[str, str]:
+        out = {}
+        for item in self.remap:
+            a, sep, b = item.partition(':=')
+            if not sep or not a or not b:
+                raise TwinError(f'remap expects FROM:=TO, got {item!r}')
+            out[_absolute(a)] = _absolute(b)
+        return out
+
+
+def _absolute(topic: str) -> str:
+    return topic if topic.startswith('/') else '/' + topic
+
+
+def qos_for(recorded: list[dict]) -> QoSProfile:
+    """The publisher QoS for a recorded topic (the first offered profile decides)."""
+    prof = recorded[0] if recorded else {}
+    keep_all = prof.get('history') == 'keep_all'
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_ALL if keep_all else HistoryPolicy.KEEP_LAST, depth=10,
+        reliability=_RELIABILITY.get(prof.get('reliability'), ReliabilityPolicy.RELIABLE),
+        durability=_DURABILITY.get(prof.get('durability'), DurabilityPolicy.VOLATILE))
+
+
+def message_class(type_name: str):
+    """The installed message class of ``pkg/msg/Type``, or None."""
+    import importlib
+    parts = type_name.split('/')
+    if len(parts) != 3 or parts[1] not in ('msg', 'srv', 'action'):
+        return None
+    try:                       # what rosidl_runtime_py's get_message does (not on PyPI here)
+        return getattr(importlib.import_module(f'{parts[0]}.{parts[1]}'), parts[2])
+    except (ImportError, AttributeError, ValueError):
+        return None
+
+
+class Player(Node):
+    """Plays ``bag`` with ``options`` (see the module docstring). Drive it with :meth:`run`
+    (or :meth:`step` from your own loop); ``warnings`` lists the topics skipped."""
+
+    def __init__(self, bag: AnyBag, options: PlayOptions, *, name: str = 'player', **kwargs):
+        super().__init__(name, **kwargs)
+        options.check()
+        self.bag = bag
+        self.options = options
+        remaps = options.remaps()
+        self.warnings: list[str] = []
+        self.pubs = {}
+        wanted = set(_absolute(t) for t in options.topics)
+        unwanted = set(_absolute(t) for t in options.exclude_topics)
+        for name_, info in sorted(bag.topics.items()):
+            if wanted and name_ not in wanted or name_ in unwanted:
+                continue
+            if options.clock > 0 and name_ == '/clock':
+                continue                      # our /clock replaces the recorded one
+            if info.serialization_format not in ('cdr', ''):
+                self.warnings.append(f'skipping {name_}: serialization '
+                                     f'{info.serialization_format!r} is not CDR')
+                continue
+            cls = message_class(info.type)
+            if cls is None:
+                self.warnings.append(f'skipping {name_}: message type {info.type!r} is not '
+                                     'installed')
+                continue
+            self.pubs[name_] = self.create_publisher(cls, remaps.get(name_, name_),
+                                                     qos_for(info.qos))
+        self.clock_pub = (self.create_publisher(Clock, '/clock', 10)
+                          if options.clock > 0 else None)
+        self.paused = options.start_paused
+        self.published = 0
+        self._play_next = 0
+        for srv, fn in (('pause', self._srv_pause), ('resume', self._srv_resume),
+                        ('toggle_paused', self._srv_toggle), ('play_next', self._srv_next),
+                        ('is_paused', self._srv_is_paused)):
+            self.create_service(Trigger, f'~/{srv}', fn)
+        self._stream = None
+        self._pending = None                  # (topic, t, data) taken from the stream
+        self._finished = False
+        t0 = bag.start_ns + int(round(options.start_offset * 1e9))
+        self._first_ns = t0
+        self._last_ns = (bag.end_ns if options.playback_duration == 0
+                         else t0 + int(round(options.playback_duration * 1e9)))
+        self.bag_now_ns = t0
+        self._restart()
+
+    # -- services -------------------------------------------------------------------------
+    def _srv_pause(self, _req, resp):
+        self._set_paused(True)
+        resp.success, resp.message = True, 'paused'
+        return resp
+
+    def _srv_resume(self, _req, resp):
+        self._set_paused(False)
+        resp.success, resp.message = True, 'playing'
+        return resp
+
+    def _srv_toggle(self, _req, resp):
+        self._set_paused(not self.paused)
+        resp.success, resp.message = True, 'paused' if self.paused else 'playing'
+        return resp
+
+    def _srv_next(self, _req, resp):
+        if not self.paused:
+            resp.success, resp.message = False, 'play_next works while paused'
+            return resp
+        ok = self._publish_next()
+        resp.success = ok
+        resp.message = 'published one message' if ok else 'end of the bag'
+        return resp
+
+    def _srv_is_paused(self, _req, resp):
+        resp.success, resp.message = self.paused, 'paused' if self.paused else 'playing'
+        return resp
+
+    def _set_paused(self, paused: bool) -> None:
+        if paused == self.paused:
+            return
+        self.paused = paused
+        if not paused:                         # the wall clock resumes from the bag time
+            self._anchor(self.bag_now_ns)
+
+    # -- playback -------------------------------------------------------------------------
+    def _restart(self) -> None:
+        self._stream = self.bag.messages(topics=list(self.pubs), start_ns=self._first_ns,
+                                         end_ns=self._last_ns)
+        self._pending = next(self._stream, None)
+        self.bag_now_ns = self._first_ns
+        self._anchor(self._first_ns, delay=self.options.delay)
+
+    def _anchor(self, bag_ns: int, delay: float = 0.0) -> None:
+        self._wall0 = time.monotonic() + delay
+        self._bag0 = bag_ns
+
+    def _due_wall(self, bag_ns: int) -> float:
+        return self._wall0 + (bag_ns - self._bag0) * 1e-9 / self.options.rate
+
+    def _publish_next(self) -> bool:
+        if self._pending is None:
+            return False
+        topic, t, data = self._pending
+        self.pubs[topic].publish(data)
+        self.published += 1
+        self.bag_now_ns = t
+        self._pending = next(self._stream, None)
+        return True
+
+    def step(self, max_wait: float = 0.05) -> float:
+        """Publish what is due now; returns how long (wall s, at most ``max_wait``) until the
+        next message is due. Sets ``finished`` at the end (after the last loop)."""
+        if self._finished:
+            return max_wait
+        if self.paused:
+            return max_wait
+        now = time.monotonic()
+        while self._pending is not None and self._due_wall(self._pending[1]) <= now:
+            self._publish_next()
+        if self._pending is None:
+            if self.options.loop:
+                self._restart()
+                return 0.0
+            self.bag_now_ns = self._last_ns
+            self._finished = True
+            return 0.0
+        # bag time advances with the wall clock between messages (for /clock)
+        self.bag_now_ns = max(self.bag_now_ns, min(
+            self._pending[1], self._bag0 + int((now - self._wall0) * self.options.rate * 1e9)))
+        return max(0.0, min(max_wait, self._due_wall(self._pending[1]) - now))
+
+    @property
+    def finished(self) -> bool:
+        return self._finished
+
+    def publish_clock(self) -> None:
+        if self.clock_pub is not None:
+            self.clock_pub.publish(clock_msg(self.bag_now_ns))
+
+
+def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None = None,
+         stop=None, on_ready=None) -> dict:
+    """Play a bag to the end (or until ``stop()`` is true); returns counts and wall time.
+
+    ``progress``: a single updating line on stderr (default: when stderr is a terminal)."""
+    from rclpy.executors import SingleThreadedExecutor
+    bag = open_any_bag(bag_path)
+    player = Player(bag, options, context=context)
+    for w in player.warnings:
+        print(f'play: warning: {w}', file=sys.stderr)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(player)
+    show = sys.stderr.isatty() if progress is None else progress
+    period = 1.0 / options.clock if options.clock > 0 else None
+    next_clock = 0.0
+    next_line = 0.0
+    wall0 = time.monotonic()
+    if on_ready is not None:
+        on_ready(player)
+    try:
+        player.publish_clock()
+        while not player.finished and not (stop and stop()):
+            wait = player.step()
+            now = time.monotonic()
+            if period is not None and now >= next_clock:
+                player.publish_clock()
+                next_clock = now + period
+                wait = min(wait, period)
+            if show and now >= next_line:
+                rate = player.published / max(now - wall0, 1e-9)
+                print(f'\r[play] bag time {(player.bag_now_ns - bag.start_ns) * 1e-9:9.3f} s '
+                      f'| {player.published} messages | {rate:8.0f} msg/s'
+                      + (' | paused' if player.paused else '        '), end='',
+                      file=sys.stderr, flush=True)
+                next_line = now + 0.2
+            ex.spin_once(timeout_sec=wait)
+        player.publish_clock()
+    finally:
+        if show:
+            print(file=sys.stderr)
+        ex.shutdown()
+        published = player.published
+        player.destroy_node()
+    return dict(published=published, wall_s=time.monotonic() - wall0,
+                bag_duration_s=bag.duration_ns * 1e-9, warnings=player.warnings)
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """``ros2 run servovalve_twin player --ros-args -p bag:=DIR [-p rate:=2.0] [-p clock:=40.0]
+    [-p topics:="['/xj']"] [-p loop:=true] ...``."""
+    import signal
+    import rclpy
+    from .rosargs import init_context, ros_parameters, stray_arguments
+    argv = list(sys.argv if args is None else args)
+    if stray_arguments(argv):
+        print('usage: player --ros-args -p bag:=DIR [-p rate:=F] [-p clock:=HZ] '
+              '[-p topics:=[...]] [-p exclude_topics:=[...]] [-p loop:=true] [-p delay:=S] '
+              '[-p start_offset:=S] [-p playback_duration:=S] [-p start_paused:=true] '
+              '[-p remap:=[FROM:=TO]]', file=sys.stderr)
+        return 2
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.append(True))
+    context, argv = init_context(argv)
+    fields = [f.name for f in dataclasses.fields(PlayOptions)]
+    try:
+        values = ros_parameters(context, 'player', ['bag'] + fields)
+        if not values.get('bag'):
+            raise TwinError('give the bag to play: --ros-args -p bag:=DIR')
+        opts = {}
+        for f in dataclasses.fields(PlayOptions):
+            if f.name in values:
+                v = values[f.name]
+                opts[f.name] = tuple(v) if isinstance(f.default, tuple) else type(f.default)(v)
+        result = play(values['bag'], PlayOptions(**opts), context=context,
+                      stop=lambda: bool(stop))
+    except (TwinError, BagError) as exc:
+        print(f'player: error: {exc}', file=sys.stderr)
+        return 2
+    finally:
+        rclpy.try_shutdown(context=context)
+    print(f'player: {result["published"]} messages in {result["wall_s"]:.2f} s')
+    return 0
