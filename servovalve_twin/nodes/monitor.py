@@ -1,40 +1,32 @@
-"""The monitor node: a simplified EHA model beside the plant, residuals and a health level.
+"""The monitor node: the built-in residual monitor
+(:class:`~servovalve_twin.prognostics.monitor.MonitorAlgorithm`) hosted like any algorithm.
 
 It runs its own copy of the actuator -- ECU law, servovalve, the chosen simplified valve model
 (default C2), jack -- with the *nominal* parameters, on the same Com, FR and PSR as the plant,
-and compares it with what the plant publishes (:mod:`servovalve_twin.prognostics.monitor`).
+and compares it with what the plant publishes.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Sequence
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from std_msgs.msg import Float64
 
 from ..physics.params import PARAM_NAMES, EhaParams
-from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import MONITOR_MODEL_NAMES, get_monitor_model
-from ..prognostics.monitor import LEVEL_NAMES, RESIDUALS, HealthConfig, HealthFilter
-from .common import TwinNode, spin_standalone
+from ..prognostics.monitor import HealthConfig, MonitorAlgorithm
+from .algorithm import AlgorithmNode, algorithm_topics
+from .common import spin_standalone
 
-INPUTS = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
-MONITOR_TOPICS = {
-    **{f'monitor/residual_{s}': (Float64, unit, 'monitor', f'plant - monitor model, {s.upper()}')
-       for s, unit in (('xj', 'm'), ('dxj', 'm/s'), ('p12', 'Pa'))},
-    **{f'monitor/health_{s}': (Float64, unit, 'monitor',
-                               f'moving RMS of the {s.upper()} residual')
-       for s, unit in (('xj', 'm'), ('dxj', 'm/s'), ('p12', 'Pa'))},
-    'diagnostics': (DiagnosticArray, '-', 'monitor',
-                    "status 'servovalve_twin: EHA monitor', level OK/WARN/ERROR, residuals"),
-}
+INPUTS = MonitorAlgorithm.inputs
+HEALTH_FIELDS = tuple(f.name for f in dataclasses.fields(HealthConfig))
 _HEALTH_DOC = {'window': 'moving-RMS window [s]'}
-HEALTH_FIELDS = ('window', 'warn_xj', 'error_xj', 'warn_dxj', 'error_dxj', 'warn_p12',
-                 'error_p12')
+#: the monitor's topics (``monitor/residual_*``, ``monitor/health_*``, ``diagnostics``)
+MONITOR_TOPICS = algorithm_topics(MonitorAlgorithm())
 
 
-class Monitor(TwinNode):
+class Monitor(AlgorithmNode):
     """Monitor model beside the plant.
 
     Subscribes: ``com``, ``fr``, ``psr`` (the plant's inputs), ``xj``, ``dxj``, ``p12`` (the
@@ -55,7 +47,11 @@ class Monitor(TwinNode):
         return PARAM_NAMES
 
     def __init__(self, **kwargs):
-        super().__init__('monitor', **kwargs)
+        # the monitor's own parameters are declared by this node (switchable at run time),
+        # not as the algorithm's read-only ones (_declared_algorithm_params below)
+        super().__init__(MonitorAlgorithm(), name='monitor', **kwargs)
+
+    def _declared_algorithm_params(self, alg) -> dict[str, Any]:
         self.declare_parameter('monitor_model', 'C2', ParameterDescriptor(
             description='simplified valve model of the monitor',
             additional_constraints='one of: ' + ', '.join(MONITOR_MODEL_NAMES)))
@@ -68,21 +64,18 @@ class Monitor(TwinNode):
                                             'the residual moving RMS [SI]'),
                 floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1e9,
                                                          step=0.0)]))
-        self.declare_parameter('diagnostics_period', 0.01, ParameterDescriptor(
-            description='DiagnosticArray period [s] (and at every level change)'))
-        self.model = EhaPlant(model, self.params)
-        self.n_sub = steps_per(self.period, self.params, 'control_period')
-        self.filter = HealthFilter(self._config(), self.period)
-        self.level = 0
-        self._last_diag_ns: int | None = None
-        self.add_publishers(MONITOR_TOPICS, MONITOR_TOPICS)
-        defaults = {k: 0.0 for k in INPUTS}
-        defaults['psr'] = self.params.PSRN
-        self.start_inputs(defaults)
-        self.start()
+        if model != alg.params['monitor_model']:
+            alg.__init__(monitor_model=model)
+        alg.config = self._config()
+        return {}
 
     def _config(self) -> HealthConfig:
         return HealthConfig(**{f: self.get_parameter(f).value for f in HEALTH_FIELDS})
+
+    @property
+    def model(self):
+        """The monitor model's plant (physics.simulate.EhaPlant)."""
+        return self.alg.plant
 
     def check_parameters(self, changes: dict[str, Any]) -> None:
         if 'monitor_model' in changes:
@@ -93,54 +86,13 @@ class Monitor(TwinNode):
         super().check_parameters(changes)
 
     def on_params(self, params: EhaParams) -> None:
-        self.model.set_params(params)
+        self.alg.set_nominal(params)
 
     def apply_parameters(self, changes: dict[str, Any]) -> None:
         if 'monitor_model' in changes:
-            self.model.set_valve_model(changes['monitor_model'])
+            self.alg.set_monitor_model(changes['monitor_model'])
         super().apply_parameters(changes)
-        self.filter = HealthFilter(self._config(), self.period)
-
-    def step(self, tick: tuple[int, int], values: dict[str, float]) -> None:
-        t_ns, n_sub = tick
-        self._advance(t_ns, n_sub, values)
-
-    def _advance(self, t_ns: int, n_sub: int, v: dict[str, float]) -> None:
-        # the monitor's own loop: its ECU sees its own XJ, as the real ECU sees the plant's
-        xj_m, dxj_m = self.model.xj, self.model.dxj
-        cor = self.model.control(v['com'], xj_m)
-        p12_m = float(self.model.tick(cor, v['fr'], v['psr'], n_sub)[0])
-        residual = {'xj': v['xj'] - xj_m, 'dxj': v['dxj'] - dxj_m, 'p12': v['p12'] - p12_m}
-        level, health = self.filter.update(residual)
-        for s in RESIDUALS:
-            self.emit_value(f'monitor/residual_{s}', residual[s])
-            self.emit_value(f'monitor/health_{s}', health[s])
-        period_ns = int(round(self.get_parameter('diagnostics_period').value * 1e9))
-        if (level != self.level or self._last_diag_ns is None
-                or t_ns - self._last_diag_ns >= period_ns):
-            self._publish_diagnostics(t_ns, level, residual, health)
-        self.level = level
-
-    def _publish_diagnostics(self, t_ns: int, level: int, residual, health) -> None:
-        self._last_diag_ns = t_ns
-        msg = DiagnosticArray()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, 1_000_000_000)
-        st = DiagnosticStatus()
-        st.level = bytes([level])
-        st.name = 'servovalve_twin: EHA monitor'
-        st.hardware_id = 'eha'
-        worst = max(RESIDUALS, key=lambda s: health[s] / self.filter.config.thresholds(s)[1])
-        unit = {'xj': 'm', 'dxj': 'm/s', 'p12': 'Pa'}[worst]
-        st.message = (f'{LEVEL_NAMES[level]}: largest residual {worst.upper()} '
-                      f'(moving RMS {health[worst]:.4g} {unit}, relative to its ERROR '
-                      f'threshold) against model {self.model.model.name}')
-        st.values = [KeyValue(key=f'residual_{s}', value=repr(residual[s])) for s in RESIDUALS]
-        st.values += [KeyValue(key=f'health_{s}', value=repr(health[s])) for s in RESIDUALS]
-        msg.status = [st]
-        self.emit('diagnostics', msg)
-
-    def on_timer(self) -> None:
-        self._advance(self.get_clock().now().nanoseconds, self.n_sub, dict(self.io.latest))
+        self.alg.set_config(self._config())
 
 
 def main(args: Sequence[str] | None = None) -> int:

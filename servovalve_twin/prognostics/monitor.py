@@ -25,6 +25,7 @@ from ..physics.params import EhaParams
 from ..physics.scenario import Scenario
 from ..physics.simulate import RunResult, simulate
 from ..physics.valves import get_monitor_model
+from .algorithm import Algorithm, Health
 
 RESIDUALS = ('xj', 'dxj', 'p12')
 OK, WARN, ERROR = 0, 1, 2
@@ -149,3 +150,83 @@ class HealthFilter:
 def config_from(values: Mapping[str, Any]) -> HealthConfig:
     fields = {f.name for f in dataclasses.fields(HealthConfig)}
     return HealthConfig(**{k: float(v) for k, v in values.items() if k in fields})
+
+
+class MonitorAlgorithm(Algorithm):
+    """The built-in residual monitor as an :class:`~.algorithm.Algorithm`: the monitor model
+    (ECU law, servovalve, the chosen simplified valve, jack, with the nominal parameters) runs
+    on the plant's inputs; outputs the residuals plant - model and their moving RMS; health is
+    the worst threshold crossed. Hosted live by the ``monitor`` node, on bags by ``evaluate``
+    and in sweeps -- the same per-tick code as :func:`monitor_run`'s arrays (tested equal)."""
+
+    inputs = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
+    outputs = tuple(f'residual_{s}' for s in RESIDUALS) + tuple(f'health_{s}' for s in RESIDUALS)
+    parameters = {'monitor_model': 'C2', 'window': 0.0, 'warn_xj': 0.0, 'error_xj': 0.0,
+                  'warn_dxj': 0.0, 'error_dxj': 0.0, 'warn_p12': 0.0, 'error_p12': 0.0}
+    topic_prefix = 'monitor'
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        get_monitor_model(self.params['monitor_model'])
+        # thresholds left at 0 take the monitor model's defaults (its registry entry)
+        base = HealthConfig.for_model(self.params['monitor_model'])
+        self.config = HealthConfig(**{f.name: (self.params[f.name] or getattr(base, f.name))
+                                      for f in dataclasses.fields(HealthConfig)})
+        self.plant = None
+        self.filter = None
+        self.level = OK
+        self._last = None
+
+    @property
+    def title(self) -> str:
+        return 'EHA monitor'
+
+    def setup(self, period: float, nominal) -> None:
+        from ..physics.simulate import EhaPlant, steps_per
+        self.n_sub = steps_per(period, nominal, 'the control period')
+        self.plant = EhaPlant(self.params['monitor_model'], nominal)
+        super().setup(period, nominal)
+
+    def reset(self) -> None:
+        from ..physics.simulate import EhaPlant
+        if self.nominal is not None:
+            self.plant = EhaPlant(self.params['monitor_model'], self.nominal)
+        self.filter = HealthFilter(self.config, self.period or 1e-3)
+        self.level = OK
+
+    def set_nominal(self, nominal) -> None:
+        """New nominal parameters (the node's parameters changed); the state is kept."""
+        self.nominal = nominal
+        self.plant.set_params(nominal)
+
+    def set_monitor_model(self, name: str) -> None:
+        get_monitor_model(name)
+        self.params['monitor_model'] = name
+        self.plant.set_valve_model(name)
+
+    def set_config(self, config: HealthConfig) -> None:
+        self.config = config
+        self.filter = HealthFilter(config, self.period or 1e-3)
+
+    def step(self, t, u):
+        # the monitor's own loop: its ECU sees its own XJ, as the real ECU sees the plant's
+        m = self.plant
+        xj_m, dxj_m = m.xj, m.dxj
+        cor = m.control(u['com'], xj_m)
+        p12_m = float(m.tick(cor, u['fr'], u['psr'], self.n_sub)[0])
+        residual = {'xj': u['xj'] - xj_m, 'dxj': u['dxj'] - dxj_m, 'p12': u['p12'] - p12_m}
+        self.level, ind = self.filter.update(residual)
+        self._last = residual, ind
+        return {**{f'residual_{s}': residual[s] for s in RESIDUALS},
+                **{f'health_{s}': ind[s] for s in RESIDUALS}}
+
+    def health(self) -> Health:
+        residual, ind = self._last
+        worst = max(RESIDUALS, key=lambda s: ind[s] / self.config.thresholds(s)[1])
+        unit = {'xj': 'm', 'dxj': 'm/s', 'p12': 'Pa'}[worst]
+        message = (f'{LEVEL_NAMES[self.level]}: largest residual {worst.upper()} '
+                   f'(moving RMS {ind[worst]:.4g} {unit}, relative to its ERROR threshold) '
+                   f'against model {self.plant.model.name}')
+        values = {**{f'residual_{s}': residual[s] for s in RESIDUALS},
+                  **{f'health_{s}': ind[s] for s in RESIDUALS}}
+        return Health(self.level, message, values)

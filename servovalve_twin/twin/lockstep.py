@@ -47,6 +47,7 @@ from ..errors import TwinError
 from ..nodes.clock import clock_msg
 from ..nodes.common import TOPICS
 from ..nodes.ecu import Ecu
+from ..nodes.algorithm import AlgorithmNode, algorithm_topics
 from ..nodes.monitor import MONITOR_TOPICS, Monitor
 from ..nodes.plant import Plant
 from ..nodes.sources import CommandGenerator, LoadSupply
@@ -54,6 +55,7 @@ from ..physics.params import EhaParams
 from ..physics.scenario import Scenario
 from ..physics.simulate import OUTPUT_PERIOD_NS, effective_params, steps_per
 from ..physics.valves import get_monitor_model, get_valve_model
+from ..prognostics.algorithm import load_algorithm
 
 TICK_DEADLINE_S = 5.0
 
@@ -118,7 +120,7 @@ class Twin:
                  clock_period: float = 1e-2, executor: str = 'events',
                  base_params: EhaParams | None = None,
                  on_flush: Callable[[float], None] | None = None,
-                 monitor: str | None = None):
+                 monitor: str | None = None, algorithms: Sequence[Any] = ()):
         get_valve_model(valve_model)
         self.scenario = load_scenario(scenario)
         self.params = effective_params(self.scenario, overrides, base_params)
@@ -172,6 +174,16 @@ class Twin:
                     sim, period, Parameter('monitor_model', Parameter.Type.STRING, monitor)]
                     + [_ros_param(n, self.params) for n in Monitor.declared_physical()])
                 topics.update(MONITOR_TOPICS)
+            # the user's algorithms: (class path or class, parameters) or instances
+            self.algorithms = []
+            for i, spec in enumerate(algorithms):
+                cls, aparams = spec if isinstance(spec, tuple) else (spec, None)
+                alg = load_algorithm(cls, aparams)
+                node = AlgorithmNode(alg, name='algorithm' if i == 0 else f'algorithm_{i + 1}',
+                                     params=self.params, **kw,
+                                     parameter_overrides=[sim, period])
+                self.algorithms.append(node)
+                topics.update(algorithm_topics(alg))
             types = {f'/{t}': _type_name(spec[0]) for t, spec in topics.items()}
             types['/clock'] = 'rosgraph_msgs/msg/Clock'
             self.recorder = Recorder(self.writer, types, keep_values=keep_values)
@@ -179,7 +191,10 @@ class Twin:
             #: the actuator's nodes: a scheduled fault goes to every one that reads its parameter
             self.actuator = [self.ecu, self.plant]
             self.nodes = [self.command_generator, self.load_supply, self.ecu, self.plant,
-                          self.clock] + ([self.monitor] if self.monitor else [])
+                          self.clock] + ([self.monitor] if self.monitor else []) \
+                + self.algorithms
+            #: the nodes that complete a tick after the plant (they read its outputs)
+            self.observers = ([self.monitor] if self.monitor else []) + self.algorithms
             for n in self.nodes:
                 if n is not self.clock:
                     n.tap = self.recorder.record
@@ -226,18 +241,18 @@ class Twin:
             if k in faults:
                 self._inject(faults[k], t_ns)
             n_sub = self.n_sub if k < n_ticks else 0      # the end instant: evaluate only
-            if self.monitor is not None:
-                self.monitor.begin_tick(t_ns, n_sub)
+            for node in self.observers:
+                node.begin_tick(t_ns, n_sub)
             self.plant.begin_tick(t_ns, n_sub)
             self.command_generator.publish_values({'com': com[k]})
             self.load_supply.publish_values({'fr': fr[k], 'psr': psr[k]})
-            self._spin_until(lambda k=k: self.plant.done >= k and (
-                self.monitor is None or self.monitor.done >= k), k)
+            self._spin_until(lambda k=k: self.plant.done >= k and all(
+                n.done >= k for n in self.observers), k)
             self.recorder.tick_done()
             if on_tick is not None:
                 on_tick(k, self)
-            if self.plant.pending() or self.ecu.pending() or (
-                    self.monitor is not None and self.monitor.pending()):
+            if self.plant.pending() or self.ecu.pending() or any(
+                    n.pending() for n in self.observers):
                 raise TwinError(f'tick {k}: more inputs than the lockstep published -- another '
                                 f'graph is publishing the same topics on ROS_DOMAIN_ID='
                                 f'{os.environ.get("ROS_DOMAIN_ID", "0")}; give each run its own '

@@ -1,0 +1,244 @@
+"""Your own PHM algorithm, written once and run live in the twin, on recorded bags and over fault
+sweeps -- with identical results, because all three hosts call it through
+:class:`AlgorithmRunner`, one control period at a time, with the same floats.
+
+An algorithm is a plain Python class (no rclpy), in the style of progpy's models::
+
+    from servovalve_twin.prognostics import Algorithm, Health
+
+    class LeakDetector(Algorithm):
+        inputs = ('com', 'xj', 'p12', 'fr', 'psr')    # signal names of the twin's topics
+        outputs = ('leak_index',)
+        parameters = {'threshold': 3.0}
+        def step(self, t, u):                         # one control period
+            ...
+            return {'leak_index': value}
+        def health(self):                             # optional
+            return Health(ERROR if ... else OK, 'message')
+
+- ``inputs``: any of :data:`SIGNALS` (the twin's Float64 topics: what the plant, ECU and
+  schedules publish at the tick's time t);
+- ``outputs``: names published live as ``std_msgs/Float64`` on ``<topic_prefix>/<name>``
+  (default prefix ``algorithm``), and columns of the ROS-free results;
+- ``parameters``: name -> default (float, int, bool or str); instances take overrides as
+  keyword arguments, live as ROS parameters (``-p threshold:=2.5``); ``self.params`` holds them;
+- ``setup(period, nominal)``: called once before the first step with the control period [s] and
+  the actuator's nominal (design) parameters; ``reset()`` restarts the internal state;
+- ``step(t, u)``: ``t`` the tick's time [s] (tick index times the period), ``u`` the inputs by
+  name; returns every output by name;
+- ``health()``: ``None`` or :class:`Health` (level OK/WARN/ERROR, a message, key/values),
+  published live as ``diagnostic_msgs/DiagnosticArray`` and scored in sweeps (ERROR = detection).
+
+A bad class path, a missing input or output name, or an algorithm that raises is one
+:class:`~servovalve_twin.errors.TwinError` line naming the algorithm and the step time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import TwinError
+
+#: the signals an algorithm may read: the twin's Float64 topics (HD adds port pressures)
+SIGNALS = ('com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj', 'p1', 'p2')
+OK, WARN, ERROR = 0, 1, 2
+LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR'}
+
+
+class AlgorithmError(TwinError):
+    """An algorithm could not be loaded, is malformed, or failed during a step."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Health:
+    """A health verdict: level (OK 0, WARN 1, ERROR 2, as diagnostic_msgs), message, values."""
+
+    level: int = OK
+    message: str = ''
+    values: Mapping[str, float] = dataclasses.field(default_factory=dict)
+
+
+class Algorithm:
+    """Base class of a user's algorithm (see the module docstring)."""
+
+    inputs: tuple[str, ...] = ()
+    outputs: tuple[str, ...] = ()
+    parameters: Mapping[str, Any] = {}
+    #: live topics are ``<topic_prefix>/<output>``
+    topic_prefix: str = 'algorithm'
+
+    def __init__(self, **params: Any):
+        unknown = sorted(set(params) - set(self.parameters))
+        if unknown:
+            raise AlgorithmError(f'algorithm {self.title}: unknown parameter {unknown[0]!r}; '
+                                 f'expected one of {sorted(self.parameters)}')
+        self.params = {k: _coerce(self.title, k, v, self.parameters[k])
+                       for k, v in {**dict(self.parameters), **params}.items()}
+        self.period: float | None = None
+        self.nominal = None
+
+    @property
+    def title(self) -> str:
+        return type(self).__name__
+
+    def setup(self, period: float, nominal) -> None:
+        """Called once by the host before the first step; the default keeps both and resets."""
+        self.period = period
+        self.nominal = nominal
+        self.reset()
+
+    def reset(self) -> None:
+        """Restart the internal state (a new run)."""
+
+    def step(self, t: float, u: Mapping[str, float]) -> Mapping[str, float]:
+        raise NotImplementedError
+
+    def health(self) -> Health | None:
+        return None
+
+
+def _coerce(title: str, name: str, value: Any, default: Any) -> Any:
+    kind = type(default)
+    try:
+        if kind is bool:
+            if isinstance(value, str):
+                if value.lower() in ('true', '1', 'yes', 'on'):
+                    return True
+                if value.lower() in ('false', '0', 'no', 'off'):
+                    return False
+                raise ValueError(value)
+            return bool(value)
+        if kind is int and not isinstance(value, bool):
+            if float(value) != int(float(value)):
+                raise ValueError(value)
+            return int(float(value))
+        if kind is float:
+            return float(value)
+        return kind(value) if default is not None else value
+    except (TypeError, ValueError):
+        raise AlgorithmError(f'algorithm {title}: parameter {name} must be a '
+                             f'{kind.__name__}, got {value!r}') from None
+
+
+def load_algorithm(spec: Any, params: Mapping[str, Any] | None = None) -> Algorithm:
+    """An instance from ``'package.module:ClassName'``, a class or an instance (``params``
+    apply to the first two)."""
+    if isinstance(spec, Algorithm):
+        if params:
+            raise AlgorithmError(f'algorithm {spec.title}: parameters go to the class, not to '
+                                 'an instance')
+        return spec
+    cls = spec
+    if isinstance(spec, str):
+        mod_name, sep, cls_name = spec.partition(':')
+        if not sep or not mod_name or not cls_name:
+            raise AlgorithmError(f'algorithm class path must be package.module:ClassName, got '
+                                 f'{spec!r}')
+        try:
+            module = importlib.import_module(mod_name)
+        except Exception as exc:  # noqa: BLE001 -- any import failure is the user's module
+            raise AlgorithmError(f'algorithm {spec}: cannot import {mod_name!r} '
+                                 f'({type(exc).__name__}: {exc})') from None
+        cls = getattr(module, cls_name, None)
+        if cls is None:
+            raise AlgorithmError(f'algorithm {spec}: module {mod_name!r} has no {cls_name!r}')
+    if not (isinstance(cls, type) and issubclass(cls, Algorithm)):
+        raise AlgorithmError(f'algorithm {spec!r} is not a servovalve_twin.prognostics.'
+                             'Algorithm subclass')
+    alg = cls(**dict(params or {}))
+    check_declaration(alg)
+    return alg
+
+
+def check_declaration(alg: Algorithm) -> None:
+    bad = [s for s in alg.inputs if s not in SIGNALS]
+    if bad:
+        raise AlgorithmError(f'algorithm {alg.title}: unknown input {bad[0]!r}; the twin '
+                             f'publishes {list(SIGNALS)}')
+    if not alg.outputs and type(alg).health is Algorithm.health:
+        raise AlgorithmError(f'algorithm {alg.title} declares no outputs and no health')
+    for name in alg.outputs:
+        if not name or not all(c.isalnum() or c == '_' for c in name):
+            raise AlgorithmError(f'algorithm {alg.title}: output name {name!r} is not a valid '
+                                 'topic name (letters, digits, underscores)')
+
+
+class AlgorithmRunner:
+    """The one code path every host uses: one tick in, the outputs and health out, every
+    failure one line naming the algorithm and the step time."""
+
+    def __init__(self, alg: Algorithm, period: float, nominal):
+        check_declaration(alg)
+        self.alg = alg
+        self.period = period
+        try:
+            alg.setup(period, nominal)
+        except TwinError:
+            raise
+        except Exception as exc:  # noqa: BLE001 -- the user's code
+            raise AlgorithmError(f'algorithm {alg.title} failed in setup: '
+                                 f'{type(exc).__name__}: {exc}') from None
+
+    def step(self, t_ns: int, u: Mapping[str, float]) -> tuple[dict[str, float], Health | None]:
+        t = t_ns * 1e-9
+        alg = self.alg
+        try:
+            out = alg.step(t, u)
+            health = alg.health()
+        except TwinError as exc:
+            raise AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: {exc}') from None
+        except Exception as exc:  # noqa: BLE001 -- the user's code
+            raise AlgorithmError(f'algorithm {alg.title} raised at t = {t:.3f} s: '
+                                 f'{type(exc).__name__}: {exc}') from None
+        try:
+            values = {name: float(out[name]) for name in alg.outputs}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: step() must return '
+                                 f'a number for each output {list(alg.outputs)} '
+                                 f'({type(exc).__name__}: {exc})') from None
+        if health is not None and not isinstance(health, Health):
+            raise AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: health() must return '
+                                 f'a Health or None, got {type(health).__name__}')
+        return values, health
+
+
+@dataclasses.dataclass
+class AlgorithmRun:
+    """An algorithm's outputs over a run, ROS-free: one row per tick."""
+
+    title: str
+    t: np.ndarray                            # s
+    outputs: dict[str, np.ndarray]
+    level: np.ndarray                        # health level per tick (0 where None)
+    messages: list[str]
+
+    def first(self, level: int = ERROR, after: float = 0.0) -> float | None:
+        hit = np.nonzero((self.level >= level) & (self.t >= after - 1e-9))[0]
+        return float(self.t[hit[0]]) if hit.size else None
+
+
+def run_algorithm(alg: Algorithm, t_ns: np.ndarray, inputs: Mapping[str, np.ndarray],
+                  period: float, nominal) -> AlgorithmRun:
+    """Step ``alg`` over recorded or simulated ticks (``t_ns`` and one array per input)."""
+    missing = [s for s in alg.inputs if s not in inputs]
+    if missing:
+        raise AlgorithmError(f'algorithm {alg.title} reads {missing[0]!r}, which the run does '
+                             f'not have (it has {sorted(inputs)})')
+    runner = AlgorithmRunner(alg, period, nominal)
+    cols = {s: np.asarray(inputs[s], dtype=float).tolist() for s in alg.inputs}
+    out = {name: np.empty(len(t_ns)) for name in alg.outputs}
+    level = np.zeros(len(t_ns), dtype=np.int8)
+    messages = []
+    for k, t in enumerate(np.asarray(t_ns, dtype=np.int64).tolist()):
+        values, health = runner.step(t, {s: cols[s][k] for s in cols})
+        for name, v in values.items():
+            out[name][k] = v
+        if health is not None:
+            level[k] = health.level
+            if health.level and (not messages or messages[-1] != health.message):
+                messages.append(health.message)
+    return AlgorithmRun(alg.title, np.asarray(t_ns) * 1e-9, out, level, messages)
