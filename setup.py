@@ -40,6 +40,9 @@ setup(
             'twin = servovalve_twin.twin.executable:main',
             'replay = servovalve_twin.apps.replay:main',
             'player = servovalve_twin.nodes.player:main',
+            'algorithm = servovalve_twin.nodes.algorithm:main',
         ],
+        # the fixtures ros_context, replay and twin_bag for every test suite (testing/plugin.py)
+        'pytest11': ['servovalve_twin = servovalve_twin.testing.plugin'],
     },
 )

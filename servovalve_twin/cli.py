@@ -30,6 +30,18 @@ def _add_param_options(p: argparse.ArgumentParser) -> None:
                         '`servovalve-twin params` lists them')
 
 
+def _add_algorithm_options(p: argparse.ArgumentParser, many: bool) -> None:
+    if many:
+        p.add_argument('--algorithm', action='append', default=[], metavar='MOD:CLASS',
+                       help='host this Algorithm in the lockstep (repeatable); its outputs '
+                            'are published and recorded')
+    else:
+        p.add_argument('--algorithm', required=True, metavar='MOD:CLASS',
+                       help='the Algorithm, package.module:ClassName')
+    p.add_argument('--algorithm-param', action='append', default=[], metavar='NAME=VALUE',
+                   help="set a parameter of the algorithm (repeatable)")
+
+
 def _add_run_options(p: argparse.ArgumentParser) -> None:
     from .physics.valves import VALVE_MODEL_NAMES
     p.add_argument('--valve-model', required=True, metavar='NAME',
@@ -165,6 +177,7 @@ def _run(args: argparse.Namespace) -> int:
                       control_period=args.control_period, bag=bag, overwrite=args.overwrite,
                       keep_values=args.out is not None, clock_period=args.clock_period,
                       monitor=args.monitor,
+                      algorithms=[(a, _algorithm_params(args)) for a in args.algorithm],
                       on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
                       if args.progress else None)
     if args.out:
@@ -176,6 +189,31 @@ def _run(args: argparse.Namespace) -> int:
                                                               else '')
           + ('; INTERRUPTED' if result.interrupted else ''))
     return 130 if result.interrupted else 0
+
+
+def _algorithm_params(args: argparse.Namespace) -> dict[str, str]:
+    """``--algorithm-param NAME=VALUE`` (typed by the algorithm from its defaults)."""
+    out = {}
+    for item in getattr(args, 'algorithm_param', None) or []:
+        name, sep, value = item.partition('=')
+        if not sep or not name.strip():
+            raise TwinError(f'--algorithm-param expects NAME=VALUE, got {item!r}')
+        out[name.strip()] = value.strip()
+    return out
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from .apps.compare import write_json
+    from .apps.evaluate import evaluate, run_to_json
+    run = evaluate(args.bag, args.algorithm, _algorithm_params(args))
+    payload = run_to_json(run, args.bag)
+    if args.json:
+        write_json(args.json, payload)
+    first = payload['first_error']
+    print(f'{run.title} on {args.bag}: {payload["ticks"]} ticks; first WARN '
+          f'{payload["first_warn"]} s, first ERROR {first} s'
+          + ''.join(f'; peak {k} {max(v):.6g}' for k, v in payload['outputs'].items()))
+    return 0
 
 
 def _parse_tolerances(items: list[str]) -> dict[str, float]:
@@ -315,7 +353,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                        scenario=args.scenario, faults=grid, ranges=ranges, draws=args.draws,
                        nominal_runs=args.nominal, repeats=args.repeats,
                        vary=_parse_vary(args.vary), onset=args.onset, seed=args.seed,
-                       base=_overrides(args))
+                       base=_overrides(args), algorithm=args.algorithm,
+                       algorithm_params=_algorithm_params(args))
     t0 = time.perf_counter()
     results = run_cases(cases, workers=args.workers, scheduler=args.scheduler)
     wall = time.perf_counter() - t0
@@ -386,6 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='run the monitor node beside the plant with this simplified model')
     p.add_argument('--progress', action='store_true',
                    help="print 'flushed up to T s' each time the bag is flushed (50 ms)")
+    _add_algorithm_options(p, many=True)
     p.add_argument('--discoverable', action='store_true',
                    help='keep DDS discovery on (to watch the topics from other processes); by '
                         'default the run is confined to its process')
@@ -413,6 +453,11 @@ def build_parser() -> argparse.ArgumentParser:
                                      'a labelled dataset for prognostics')
     p.add_argument('--plant-model', default='HD', metavar='NAME')
     p.add_argument('--monitor-model', default='C2', metavar='NAME')
+    p.add_argument('--algorithm', metavar='MOD:CLASS',
+                   help='score your Algorithm (its ERROR health = detection) instead of the '
+                        'monitor')
+    p.add_argument('--algorithm-param', action='append', default=[], metavar='NAME=VALUE',
+                   help='set a parameter of the algorithm (repeatable)')
     p.add_argument('--scenario', default='paper', metavar='paper|FILE.yaml')
     p.add_argument('--fault', action='append', default=[], metavar='NAME:S1,S2|NAME:LO~HI',
                    help='fault and severities (repeatable); `servovalve-twin faults` lists them')
@@ -452,6 +497,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO',
                    help='publish topic FROM as TO')
     p.set_defaults(func=cmd_play)
+
+    p = sub.add_parser('evaluate', help='run your Algorithm on a recorded bag, ROS-free (the '
+                                        'same outputs as live)')
+    p.add_argument('bag', metavar='BAG', help='bag directory, .mcap or .db3 file')
+    _add_algorithm_options(p, many=False)
+    p.add_argument('--json', metavar='FILE', help='outputs, levels and alarm times as JSON')
+    p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser('faults', help='list the injectable faults')
     p.set_defaults(func=cmd_faults)

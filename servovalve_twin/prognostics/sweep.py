@@ -45,6 +45,8 @@ class Case:
     design: Mapping[str, float] = dataclasses.field(default_factory=dict)
     #: the design values the monitor knows (the --param overrides, without the nuisance draw):
     #: a monitor cannot know each unit's own mass or friction
+    algorithm: Any = None              # a user's Algorithm ('pkg.mod:Class' or class) instead
+    algorithm_params: Mapping[str, Any] | None = None      # of the monitor; its parameters
 
 
 def run_case(case: Case) -> dict[str, Any]:
@@ -58,11 +60,18 @@ def run_case(case: Case) -> dict[str, Any]:
     actual = make_params(dict(scn.params) | dict(case.params))
     design = make_params(dict(scn.params) | dict(case.design))
     run = simulate(case.plant_model, raw, params=actual, ecu_period=case.ecu_period)
-    config = (HealthConfig(**case.thresholds) if case.thresholds
-              else HealthConfig.for_model(case.monitor_model))
-    mon = monitor_run(run, case.monitor_model, config, nominal=design)
-    alarm = mon.first_alarm(ERROR)
-    warn = mon.first_alarm(WARN)
+    if case.algorithm is not None:
+        features, traces, alarm, warn = _algorithm_case(case, run, design)
+    else:
+        config = (HealthConfig(**case.thresholds) if case.thresholds
+                  else HealthConfig.for_model(case.monitor_model))
+        mon = monitor_run(run, case.monitor_model, config, nominal=design)
+        alarm = mon.first_alarm(ERROR)
+        warn = mon.first_alarm(WARN)
+        features = mon.features()
+        traces = dict(t=mon.t, level=mon.level.astype(np.int8),
+                      **{f'res_{k}': v for k, v in mon.residuals.items()},
+                      **{f'ind_{k}': v for k, v in mon.indicators.items()})
     before = alarm is not None and alarm < case.onset
     row: dict[str, Any] = dict(
         run_id=case.run_id, plant_model=case.plant_model, monitor_model=case.monitor_model,
@@ -75,11 +84,26 @@ def run_case(case: Case) -> dict[str, Any]:
                                                   and alarm >= case.onset) else float('nan'),
         alarm_before_onset=int(bool(before)))
     row.update({f'param_{k}': float(v) for k, v in case.params.items()})
-    row.update(mon.features())
-    traces = dict(t=mon.t, level=mon.level.astype(np.int8),
-                  **{f'res_{k}': v for k, v in mon.residuals.items()},
-                  **{f'ind_{k}': v for k, v in mon.indicators.items()})
+    row.update(features)
     return dict(row=row, traces=traces)
+
+
+def _algorithm_case(case: Case, run, design):
+    """The user's algorithm on the run's 1 ms rows -- the ticks the twin's lockstep feeds it
+    live at a 1 ms control period (the twin equals simulate with that ECU period)."""
+    from ..physics.simulate import OUTPUT_PERIOD_NS
+    from .algorithm import load_algorithm, run_algorithm
+    if int(round(case.ecu_period * 1e9)) != OUTPUT_PERIOD_NS:
+        raise TwinError('an algorithm in a sweep runs at the 1 ms control period, got '
+                        f'{case.ecu_period} s')
+    alg = load_algorithm(case.algorithm, case.algorithm_params)
+    t_ns = np.arange(len(run['t']), dtype=np.int64) * OUTPUT_PERIOD_NS
+    res = run_algorithm(alg, t_ns, run.signals, case.ecu_period, design)
+    features = {f'peak_{k}': float(np.max(v)) for k, v in res.outputs.items()}
+    features.update({f'mean_abs_{k}': float(np.mean(np.abs(v))) for k, v in res.outputs.items()})
+    features['max_level'] = int(res.level.max())
+    traces = dict(t=res.t, level=res.level, **{f'out_{k}': v for k, v in res.outputs.items()})
+    return features, traces, res.first(ERROR), res.first(WARN)
 
 
 def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
@@ -88,7 +112,8 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
                ranges: Mapping[str, tuple[float, float]] | None = None,
                vary: Mapping[str, float] | None = None, onset: float = 0.1, seed: int = 0,
                base: Mapping[str, Any] | None = None,
-               thresholds: Mapping[str, float] | None = None) -> list[Case]:
+               thresholds: Mapping[str, float] | None = None, algorithm: Any = None,
+               algorithm_params: Mapping[str, Any] | None = None) -> list[Case]:
     """A grid (``faults``: name -> severities, each run ``repeats`` times) and/or Monte-Carlo
     draws (``draws`` runs per fault in ``ranges``: name -> (lo, hi), severities uniform), plus
     ``nominal_runs`` fault-free runs. ``vary`` (name -> relative spread) draws every run's
@@ -104,6 +129,9 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
     nominal = effective_params(scn, base)
     if not 0.0 <= onset < scn.duration:
         raise TwinError(f'onset {onset} s must lie in [0, {scn.duration}) s')
+    if algorithm is not None:
+        from .algorithm import load_algorithm
+        load_algorithm(algorithm, algorithm_params)          # a bad class path fails now
     rng = np.random.default_rng(seed)
     cases: list[Case] = []
 
@@ -119,7 +147,8 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
                           monitor_model=monitor_model, scenario=scn.to_dict(),
                           params=draw_params(), fault=fault, severity=float(severity),
                           onset=onset, thresholds=thresholds,
-                          design={k: v for k, v in (base or {}).items()}))
+                          design={k: v for k, v in (base or {}).items()},
+                          algorithm=algorithm, algorithm_params=algorithm_params))
     for _ in range(nominal_runs):
         add('none', 0.0)
     for name, severities in (faults or {}).items():
@@ -212,6 +241,8 @@ def plot_signature(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
     faults = sorted({r['fault'] for r in rows if r['faulty']})
     feats = (('peak_rms_xj', 'XJ [mm]', 1e3), ('peak_rms_dxj', 'DXJ [mm/s]', 1e3),
              ('peak_rms_p12', 'P12 [MPa]', 1e-6))
+    if rows and 'peak_rms_xj' not in rows[0]:           # a user's algorithm: its outputs
+        feats = tuple((k, k[len('peak_'):], 1.0) for k in rows[0] if k.startswith('peak_'))
     fig, axes = plt.subplots(len(feats), max(1, len(faults)),
                              figsize=(3.0 * max(1, len(faults)), 7.0), squeeze=False)
     nominal = [r for r in rows if not r['faulty']]
@@ -227,7 +258,8 @@ def plot_signature(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
             if i == 0:
                 ax.set_title(fault, fontsize=8)
             if j == 0:
-                ax.set_ylabel(f'peak moving RMS\nresidual {label}', fontsize=8)
+                ax.set_ylabel(f'peak {label}' if 'peak_rms_xj' not in rows[0] else
+                              f'peak moving RMS\nresidual {label}', fontsize=8)
             if i == len(feats) - 1:
                 ax.set_xlabel('severity', fontsize=8)
             ax.tick_params(labelsize=7)
