@@ -213,3 +213,34 @@ def test_multi_process_graph_shares_simulated_time(ros_context, tmp_path):
             p.send_signal(signal.SIGINT)
             _, err = p.communicate(timeout=20)
             assert p.returncode == 0, err[-2000:]
+
+
+def test_algorithm_and_player_executables(tmp_path):
+    """`ros2 run servovalve_twin algorithm -p class:=...` hosts a user's class alone (its
+    parameters as ROS parameters); `player -p bag:=...` plays a bag to its end; bad input is
+    one line and exit 2."""
+    env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM='0',
+               PYTHONPATH=str(ROOT / 'docs' / 'examples' / 'my_detector'))
+    proc = subprocess.Popen([console_script('algorithm'), '--ros-args', '-p',
+                             'class:=leak_detector:LeakDetector', '-p', 'threshold:=2.5'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    started = wait_for_line(proc, 'started: ', timeout=120)
+    assert 'control period 0.001 s' in started
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0 and 'Traceback' not in err, err
+    for args, fragment in ((['class:=leak_detector:Nope'], "has no 'Nope'"),
+                           ([], 'give the algorithm')):
+        cmd = [console_script('algorithm'), '--ros-args'] + sum((['-p', a] for a in args), [])
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
+        assert r.returncode == 2 and fragment in r.stderr and 'Traceback' not in r.stderr, \
+            r.stderr
+    from bagmaker import write_bag
+    written = write_bag(tmp_path / 'b', storage='mcap', version=9, split=2)
+    r = subprocess.run([console_script('player'), '--ros-args', '-p', f'bag:={tmp_path / "b"}',
+                        '-p', 'rate:=20.0'], capture_output=True, text=True, timeout=120)
+    played = sum(1 for m in written if m[0] != '/custom')
+    assert r.returncode == 0 and f'player: {played} messages' in r.stdout, r.stdout + r.stderr
+    r = subprocess.run([console_script('player'), '--ros-args', '-p', 'bag:=/nonexistent'],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and 'no bag at' in r.stderr and r.stderr.count('\n') == 1

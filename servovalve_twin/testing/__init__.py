@@ -5,8 +5,8 @@ package (entry point ``pytest11``: :mod:`.plugin`).
 ``replay_into(nodes, bag)`` delivers every selected recorded message to the nodes'
 subscriptions in log-time order, one at a time, inside one executor, with simulated time set to
 each message's log time first (the nodes run with ``use_sim_time``; their sim-time timers fire
-in order as time passes, each at its own deadline, a timer due at t after the messages logged
-at t), and returns everything the nodes published,
+in order as time passes, each at its own deadline counted from the bag's first message, a timer
+due at t after the messages logged at t), and returns everything the nodes published,
 keyed by topic, stamped with the simulated time at which it was published.
 
 Why not DDS: ``ros2 bag play`` (and any player) races the node -- how many messages a callback
@@ -175,7 +175,16 @@ class _Replayer:
                     break
                 self._set_time(due)
                 self.drain()
-        if self.now_ns is None or t_ns > self.now_ns:
+        if self.now_ns is None:
+            # simulated time starts at the bag's first message: the nodes' sim-time timers,
+            # created before any time was set, count their periods from there
+            self._set_time(t_ns)
+            if self.clock:
+                for n in self.nodes:
+                    for timer in n.timers:
+                        if timer.clock.clock_type == ClockType.ROS_TIME:
+                            timer.reset()
+        elif t_ns > self.now_ns:
             self._set_time(t_ns)
 
     def _next_timer_deadline(self) -> int | None:
