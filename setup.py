@@ -12,6 +12,9 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    # the HD reference bag of the paper scenario, read-only to every command (servovalve-twin
+    # compare @paper_HD RUN)
+    package_data={'servovalve_twin': ['data/paper_HD/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -27,7 +30,6 @@ setup(
     maintainer_email='maintainers@servovalve-twin.invalid',
     description='Digital twin of an aerospace electro-hydraulic actuator (ROS 2 Jazzy).',
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'servovalve-twin = servovalve_twin.cli:main',

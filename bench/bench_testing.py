@@ -1,5 +1,6 @@
-"""Throughput of playing bags and of deterministic replay, on the reference bag bags/paper_HD
-(1.0 s of the paper scenario, HD, 12 113 messages: 12 113 messages per second of bag time).
+"""Throughput of playing bags and of deterministic replay, on the packaged reference bag
+@paper_HD (1.0 s of the paper scenario, HD, 12 113 messages: 12 113 messages per second of
+bag time).
 
 - player: `servovalve-twin play`'s Player publishing every message as its recorded bytes, at
   rate 1 (paced by the bag) and at rate 1000 (as fast as it can publish), no subscriber;
@@ -26,7 +27,7 @@ from std_msgs.msg import Float64
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'docs' / 'examples' / 'my_detector'))
-BAG = ROOT / 'bags' / 'paper_HD'
+BAG = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
 
 
 class AllFloats(Node):

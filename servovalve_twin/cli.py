@@ -168,11 +168,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .config import load_scenario
+    from .config import default_bag_dir, load_scenario
     from .runs import write_csv
     from .twin import run_twin
     scenario = load_scenario(args.scenario)
-    bag = None if args.no_bag else (args.bag or f'bags/{scenario.name}_{args.valve_model}')
+    bag = None if args.no_bag else (args.bag or default_bag_dir(scenario.name, args.valve_model))
+    if args.out and args.out != '-' and not Path(args.out).resolve().parent.is_dir():
+        raise TwinError(f'--out {args.out}: directory {str(Path(args.out).parent)!r} does not '
+                        'exist')
     result = run_twin(args.valve_model, scenario, _overrides(args),
                       control_period=args.control_period, bag=bag, overwrite=args.overwrite,
                       keep_values=args.out is not None, clock_period=args.clock_period,
@@ -236,11 +239,13 @@ def _parse_tolerances(items: list[str]) -> dict[str, float]:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from .apps.compare import (check_same_inputs, error_metrics, exceeded, format_table,
-                               load_run, write_json)
+                               load_run, provenance_differences, write_json)
     from .apps.plots import plot_overlay
     tolerances = _parse_tolerances(args.tolerance)
     ref, windows = load_run(args.ref)
     run, _ = load_run(args.run)
+    for line in provenance_differences(args.ref, args.run):
+        print(f'servovalve-twin compare: warning: {line}', file=sys.stderr)
     check_same_inputs(ref, run)
     metrics = error_metrics(ref, run, windows)
     print(f'{args.run} against {args.ref} (errors run - ref, RMS / max):')
@@ -302,9 +307,15 @@ def cmd_play(args: argparse.Namespace) -> int:
 def cmd_reindex(args: argparse.Namespace) -> int:
     from .bag.reindex import reindex
     meta = reindex(args.bag)
+    rep = meta['report']
     print(f'{args.bag}: rebuilt, {meta["message_count"]} messages over '
           f'{meta["duration"]["nanoseconds"] * 1e-9:.3f} s in '
           f'{len(meta["topics_with_message_count"])} topics')
+    if rep['skipped_bytes'] or rep['dropped_messages']:
+        where = (f'{rep["skipped_bytes"]} bytes from byte {rep["stopped_at"]}'
+                 if rep['stopped_at'] is not None else 'from a damaged record on')
+        print(f'{args.bag}: skipped {where} ({rep["reason"]}) and '
+              f'{rep["dropped_messages"]} messages of unknown channels', file=sys.stderr)
     return 0
 
 
@@ -518,6 +529,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        from .config import resolve_bag
+        for attr in ('bag', 'ref', 'run'):        # @paper_HD: a packaged reference bag
+            value = getattr(args, attr, None)
+            if isinstance(value, str) and value.startswith('@'):
+                setattr(args, attr, str(resolve_bag(value)))
         return int(args.func(args) or 0)
     except TwinError as exc:
         print(f'servovalve-twin {args.command}: error: {exc}', file=sys.stderr)

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any, Mapping
 
-from .errors import ScenarioError
+from .errors import BagError, ScenarioError
 from .physics.scenario import Scenario, scenario_from_dict
 
 
@@ -61,3 +61,44 @@ def load_scenario(spec: str | Path | Mapping[str, Any] | Scenario) -> Scenario:
         return scenario_from_dict(read_yaml(path, 'scenario file'), name=path.stem)
     raise ScenarioError(f'unknown scenario {text!r}: not a built-in name {sorted(builtins)} '
                         'and not a YAML file')
+
+
+def reference_dir() -> Path:
+    """The packaged reference bags (``servovalve_twin/data``), read-only to every command."""
+    return Path(__file__).resolve().parent / 'data'
+
+
+def reference_bags() -> dict[str, Path]:
+    return {p.name: p for p in sorted(reference_dir().iterdir()) if p.is_dir()}
+
+
+def resolve_bag(spec: str | Path) -> Path:
+    """A bag path; ``@NAME`` names a packaged reference bag (``@paper_HD``)."""
+    text = str(spec)
+    if text.startswith('@'):
+        refs = reference_bags()
+        if text[1:] not in refs:
+            raise BagError(f'unknown reference bag {text!r}; the package holds '
+                                f'{["@" + n for n in refs]}')
+        return refs[text[1:]]
+    return Path(text)
+
+
+def safe_name(name: str) -> str:
+    """A scenario or model name as a single, harmless path component (``../../x`` -> ``x``)."""
+    import re
+    cleaned = re.sub(r'[^A-Za-z0-9_.-]+', '_', str(name)).strip('._') or 'run'
+    return cleaned[:80]
+
+
+def default_bag_dir(scenario_name: str, valve_model: str, root: str | Path = 'bags') -> Path:
+    """``bags/<scenario>_<model>_<UTC time>`` (rosbag2's convention: a timestamped directory),
+    never an existing one: the contents are reproducible, the name never collides."""
+    import datetime
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d-%H-%M-%S')
+    base = Path(root) / f'{safe_name(scenario_name)}_{safe_name(valve_model)}_{stamp}'
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f'{base.name}_{n}')
+    return path

@@ -139,7 +139,7 @@ def test_cli_run_evaluate_and_sweep_with_an_algorithm(tmp_path, capsys, monkeypa
 ])
 def test_bad_algorithm_is_one_line(args, fragment, capsys, monkeypatch):
     monkeypatch.syspath_prepend(str(EXAMPLE))
-    assert main(['evaluate', str(ROOT / 'bags' / 'paper_HD')] + args) == 2
+    assert main(['evaluate', str(ROOT / 'servovalve_twin' / 'data' / 'paper_HD')] + args) == 2
     err = capsys.readouterr().err
     assert fragment in err and err.count('\n') == 1 and 'Traceback' not in err, err
 

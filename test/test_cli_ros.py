@@ -31,7 +31,7 @@ def test_run_bad_input_exit_2(tmp_path, capsys):
 
 
 def test_compare_tables_json_plot_and_tolerance(tmp_path, capsys):
-    hd = ROOT / 'bags' / 'paper_HD'
+    hd = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
     csv = tmp_path / 'c2.csv'
     assert main(['simulate', '--valve-model', 'C2', '--ecu-period', '0.001', '--out',
                  str(csv)]) == 0

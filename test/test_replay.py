@@ -1,5 +1,5 @@
-"""Replaying the HD reference bag (bags/paper_HD): with HD it reproduces the bag; with the
-C-models the paper's statements (MODELS.md section 7) are checked on the replayed bags."""
+"""Replaying the packaged HD reference bag (@paper_HD): with HD it reproduces the bag; with
+the C-models the paper's statements (MODELS.md section 7) are checked on the replayed bags."""
 
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ from servovalve_twin.cli import main
 from servovalve_twin.physics.params import DEFAULTS
 from conftest import ROOT
 
-HD_BAG = ROOT / 'bags' / 'paper_HD'
+HD_BAG = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
 
 
 @pytest.fixture(scope='module')
@@ -37,7 +37,7 @@ def test_reference_bag_is_the_documented_run():
     assert run.valve_model == 'HD' and run.control_period == 1e-3
     assert run.params()['CLk'] == DEFAULTS.CLk
     size = sum(f.stat().st_size for f in HD_BAG.iterdir())
-    print(f'bags/paper_HD: {size / 1024:.0f} KiB, {sum(run.topics.values())} messages')
+    print(f'@paper_HD: {size / 1024:.0f} KiB, {sum(run.topics.values())} messages')
 
 
 def test_replay_with_hd_reproduces_the_bag(replays):

@@ -134,7 +134,8 @@ def test_bad_start_up_parameter_is_one_line_exit_2():
 
 def test_replay_executable(tmp_path):
     r = subprocess.run([console_script('replay'), '--ros-args', '-p',
-                        f'bag:={ROOT / "bags" / "paper_HD"}', '-p', 'valve_model:=C3', '-p',
+                        f'bag:={ROOT / "servovalve_twin" / "data" / "paper_HD"}', '-p',
+                        'valve_model:=C3', '-p',
                         f'out:={tmp_path / "r"}'], capture_output=True, text=True, timeout=120)
     print(r.stdout[-800:], r.stderr[-500:])
     assert r.returncode == 0 and 'overstall' in r.stdout
@@ -151,14 +152,19 @@ def test_twin_executable(tmp_path):
     from servovalve_twin.bag.reader import read_bag
     run = read_bag(tmp_path / 't')
     assert run.valve_model == 'C3' and run.params()['CLk'] == 3e-13
-    # recording is on by default, into bags/<scenario>_<model>; an existing bag is not replaced
+    # recording is on by default, into bags/<scenario>_<model>_<UTC time>: a rerun never
+    # collides with an earlier bag; an explicit existing bag is replaced only with overwrite
     cmd = [console_script('twin'), '--ros-args', '-p', 'valve_model:=C1', '-p',
            'scenario:=defaults']
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    assert r.returncode == 0 and read_bag(tmp_path / 'bags' / 'defaults_C1').valve_model == 'C1'
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    assert r.returncode == 2 and 'exists' in r.stderr
-    r = subprocess.run(cmd + ['-p', 'overwrite:=true'], capture_output=True, text=True,
+    for _ in range(2):
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+    made = sorted((tmp_path / 'bags').glob('defaults_C1_*'))
+    assert len(made) == 2 and all(read_bag(b).valve_model == 'C1' for b in made)
+    explicit = cmd + ['-p', f'bag:={made[0]}']
+    r = subprocess.run(explicit, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 2 and 'exists' in r.stderr and '--overwrite' in r.stderr
+    r = subprocess.run(explicit + ['-p', 'overwrite:=true'], capture_output=True, text=True,
                        timeout=120, cwd=tmp_path)
     assert r.returncode == 0
 

@@ -102,6 +102,32 @@ def write_json(path: str | Path, payload: Any) -> None:
     Path(path).write_text(json.dumps(clean(payload), indent=2) + '\n', encoding='utf-8')
 
 
+def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:
+    """What differs between two recorded runs besides the valve model -- parameters, scenario,
+    control period -- from their provenance records (bags only; nothing for CSVs): a comparison
+    of two runs of different actuators or inputs is rarely what was meant."""
+    from ..bag.reader import read_bag
+    if Path(ref).suffix == '.csv' or Path(run).suffix == '.csv':
+        return []
+    a, b = read_bag(ref), read_bag(run)
+    if not a.provenance or not b.provenance:
+        return []
+    out = []
+    pa, pb = a.params(), b.params()
+    changed = sorted(k for k in set(pa) | set(pb) if pa.get(k) != pb.get(k))
+    if changed:
+        out.append('the runs were made with different parameters: ' + ', '.join(
+            f'{k} {pa.get(k)!r} vs {pb.get(k)!r}' for k in changed[:5])
+            + (f' (and {len(changed) - 5} more)' if len(changed) > 5 else ''))
+    if a.scenario() != b.scenario():
+        out.append(f'the runs flew different scenarios: {a.provenance.get("scenario_name")!r} '
+                   f'vs {b.provenance.get("scenario_name")!r} (or the same name, changed)')
+    if a.control_period != b.control_period:
+        out.append(f'the runs had different control periods: {a.control_period} vs '
+                   f'{b.control_period} s')
+    return out
+
+
 def load_run(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, tuple[float, float]]]:
     """A run's 1 ms signals from a bag (directory or .mcap) or a ``simulate`` CSV, and its
     windows: the scenario's phases (split at every breakpoint) and named windows."""

@@ -18,6 +18,7 @@ from ..errors import BagError, TwinError
 from ..physics.params import DEFAULTS, PARAM_NAMES, EhaParams
 from ..physics.scenario import Scenario, scenario_from_dict
 from ..bag.reader import BagRun, read_bag
+from ..config import default_bag_dir
 
 
 def scenario_from_bag(run: BagRun) -> Scenario:
@@ -56,7 +57,7 @@ def bag_params(run: BagRun) -> EhaParams:
 
 
 def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path | None = None,
-           overrides: Mapping[str, Any] | None = None, overwrite: bool = True,
+           overrides: Mapping[str, Any] | None = None, overwrite: bool = False,
            **twin_kwargs) -> tuple[BagRun, Any, dict]:
     """Replay ``bag``; returns (the original, the new :class:`~..twin.TwinResult`, metrics of
     the new run against the original)."""
@@ -67,7 +68,7 @@ def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path |
     model = valve_model or original.valve_model or 'C2'
     period = original.control_period or 1e-3
     src = Path(bag)
-    out = Path(out) if out is not None else src.parent / f'{src.name}_replay_{model}'
+    out = Path(out) if out is not None else default_bag_dir(f'{src.name}_replay', model)
     result = run_twin(model, scenario, overrides, control_period=period, bag=out,
                       base_params=bag_params(original), overwrite=overwrite, **twin_kwargs)
     new = read_bag(out)

@@ -22,7 +22,7 @@ from typing import Any, Iterable, Iterator
 import yaml
 
 from ..errors import BagError
-from .reader import _mcap_errors
+from .reader import _mcap_errors, check_data_crc
 
 # rmw's enums, as rosbag2 versions <= 8 wrote them (rmw/types.h)
 _HISTORY = {0: 'system_default', 1: 'keep_last', 2: 'keep_all', 3: 'unknown'}
@@ -217,8 +217,10 @@ def _file_messages(f: Path, storage: str, keep, start_ns, end_ns,
 def _mcap_messages(f, keep, start_ns, end_ns, topics_out):
     from mcap.reader import make_reader
     try:
+        if topics_out is not None:              # once, when the bag is opened
+            check_data_crc(f)
         with open(f, 'rb') as fh:
-            reader = make_reader(fh)
+            reader = make_reader(fh, validate_crcs=True)
             if topics_out is not None:
                 summary = reader.get_summary()
                 if summary is not None:

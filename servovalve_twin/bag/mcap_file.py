@@ -7,7 +7,9 @@ plain lists; every other record (Header, Schema, Channel, Chunk framing, Message
 Statistics, ChunkIndex, SummaryOffset, Footer) is written with the ``mcap`` library's own record
 classes, so the file is standard MCAP that any reader opens.
 
-Layout, as rosbag2's MCAP storage writes it: uncompressed chunks without CRCs, then the
+Layout, as rosbag2's MCAP storage writes it (uncompressed chunks), but with every CRC MCAP has:
+each chunk's, the data section's and the summary's (rosbag2 leaves them 0), so that a flipped
+byte is detected on reading instead of read silently (about 0.15 ms per simulated second); then the
 summary (schemas, channels, statistics, chunk indexes, metadata indexes, summary offsets).
 Schemas and channels are written to the data section as soon as they are registered, before
 any chunk, so that a file cut short still names every channel (``reindex`` relies on it).
@@ -16,12 +18,13 @@ any chunk, so that a file cut short still names every channel (``reindex`` relie
 from __future__ import annotations
 
 import struct
+import zlib
 from typing import BinaryIO, Dict, List
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
-from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Metadata,
+from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Header, Metadata,
                           MetadataIndex, Schema, Statistics, SummaryOffset)
 
 MAGIC = struct.pack('<8B', 137, 77, 67, 65, 80, 48, 13, 10)
@@ -47,15 +50,20 @@ class McapFileWriter:
         self.message_count = 0
         self._start = 0
         self._end = 0
-        self._out.write(MAGIC)
+        self._crc = 0                     # CRC32 of the data section written so far
+        self._write(MAGIC)
         self._write_record(Header(profile=profile, library=library))
+
+    def _write(self, data: bytes) -> None:
+        self._crc = zlib.crc32(data, self._crc)
+        self._out.write(data)
 
     def _write_record(self, record) -> int:
         """Write a non-message record at the end of the data section; returns its offset."""
         builder = RecordBuilder()
         record.write(builder)
         offset = self._out.tell()
-        self._out.write(builder.end())
+        self._write(builder.end())
         return offset
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
@@ -134,7 +142,8 @@ class McapFileWriter:
         offset = self._write_record(Chunk(compression='', data=data,
                                           message_start_time=self._chunk_start,
                                           message_end_time=self._chunk_end,
-                                          uncompressed_crc=0, uncompressed_size=len(data)))
+                                          uncompressed_crc=zlib.crc32(data),
+                                          uncompressed_size=len(data)))
         chunk_length = self._out.tell() - offset
         index_offsets = {}
         index_start = self._out.tell()
@@ -144,8 +153,8 @@ class McapFileWriter:
             rows = rows[np.argsort(rows[:, 0], kind='stable')]       # readers expect time order
             pairs = rows.astype('<u8').tobytes()
             index_offsets[cid] = self._out.tell()
-            self._out.write(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 2 + 4 + len(pairs), cid,
-                                        len(pairs)) + pairs)
+            self._write(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 2 + 4 + len(pairs), cid,
+                                    len(pairs)) + pairs)
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=self._chunk_start, message_end_time=self._chunk_end,
             chunk_start_offset=offset, chunk_length=chunk_length,
@@ -168,7 +177,10 @@ class McapFileWriter:
 
     def finish(self) -> None:
         self.close_chunk()
-        self._write_record(DataEnd(data_section_crc=0))
+        # the data section's CRC covers every byte before the DataEnd record, magic included
+        builder = RecordBuilder()
+        DataEnd(data_section_crc=self._crc).write(builder)
+        self._out.write(builder.end())
         summary_start = self._out.tell()
         builder = RecordBuilder()
         offsets = []
@@ -192,8 +204,11 @@ class McapFileWriter:
         summary_offset_start = summary_start + builder.count
         for o in offsets:
             o.write(builder)
-        self._out.write(builder.end())
-        self._write_record(Footer(summary_start=summary_start,
-                                  summary_offset_start=summary_offset_start, summary_crc=0))
+        summary = builder.end()
+        # the footer's CRC covers the summary and the footer up to its own field
+        footer_head = struct.pack('<BQQQ', Opcode.FOOTER, 8 + 8 + 4, summary_start,
+                                  summary_offset_start)
+        self._out.write(summary + footer_head
+                        + struct.pack('<I', zlib.crc32(footer_head, zlib.crc32(summary))))
         self._out.write(MAGIC)
         self._out.flush()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import struct
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,29 @@ def mcap_path(path: str | Path) -> Path:
         raise BagError(f'bag directory {str(p)!r} holds {len(files)} .mcap files; split bags '
                        'are not supported')
     return files[0]
+
+
+def check_data_crc(file: Path) -> None:
+    """Verify an MCAP file's data-section CRC (the DataEnd record's), which covers what lies
+    outside the chunks -- the metadata records, the twin's provenance among them. The mcap
+    reader checks the chunk and summary CRCs but does not read the whole data section. A CRC of
+    0 means "not computed" (rosbag2 writes 0; so did this project before CRCs)."""
+    with open(file, 'rb') as fh:
+        data = fh.read()
+    if len(data) < 8 + 29 + 8 or data[-8:] != data[:8]:
+        return                                  # no footer: the reader will say what is wrong
+    footer = data[-8 - 29:-8]
+    if footer[0] != 0x02:
+        return
+    summary_start = struct.unpack('<Q', footer[9:17])[0]
+    end = summary_start - 13 if summary_start else len(data) - 8 - 29 - 13
+    if end < 8 or data[end] != 0x0F:
+        raise BagError(f'bag {str(file)!r} is corrupt (no DataEnd record where the footer '
+                       'points)')
+    stored = struct.unpack('<I', data[end + 9:end + 13])[0]
+    if stored and zlib.crc32(data[:end]) != stored:
+        raise BagError(f'bag {str(file)!r} is corrupt: the CRC of its data section does not '
+                       'match (a byte was changed outside the message chunks)')
 
 
 @dataclasses.dataclass
@@ -85,8 +109,9 @@ def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
     counts: dict[str, int] = {}
     provenance: dict[str, str] = {}
     try:
+        check_data_crc(file)
         with open(file, 'rb') as fh:
-            reader = make_reader(fh)
+            reader = make_reader(fh, validate_crcs=True)
             for schema, channel, message in reader.iter_messages(log_time_order=True):
                 counts[channel.topic] = counts.get(channel.topic, 0) + 1
                 if schema is not None and schema.name == 'std_msgs/msg/Float64':

@@ -16,6 +16,7 @@ import json
 import os
 import re
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -121,15 +122,31 @@ class BagWriter:
                  overwrite: bool = False, file_name: str | None = None,
                  library: str = f'servovalve_twin {__version__}'):
         self.dir = Path(directory)
-        if self.dir.exists() and any(self.dir.iterdir()):
+        if _inside(self.dir, READ_ONLY_DIRS):
+            raise BagError(f'{str(self.dir)!r} is inside the packaged reference bags, which no '
+                           'command writes; record somewhere else')
+        if self.dir.is_symlink() or (self.dir.exists() and not self.dir.is_dir()):
+            raise BagError(f'bag directory {str(self.dir)!r} is not a directory (or is a '
+                           'symbolic link): refusing to write there')
+        self._created_dir = not self.dir.exists()
+        if not self._created_dir and any(self.dir.iterdir()):
             if not overwrite:
-                raise BagError(f'bag directory {str(self.dir)!r} exists and is not empty')
-            for f in self.dir.iterdir():
-                if f.suffix in ('.mcap', '.yaml'):
-                    f.unlink()
+                raise BagError(f'bag directory {str(self.dir)!r} exists and is not empty; give '
+                               'another directory, or --overwrite to replace the bag in it')
+            # only the files the bag owns: metadata.yaml and <dir>_<n>.mcap; nothing else in
+            # the directory is touched, and a symbolic link is never followed
+            owned = bag_files(self.dir)
+            links = [f.name for f in owned if f.is_symlink()]
+            if links:
+                raise BagError(f'bag directory {str(self.dir)!r}: {links[0]} is a symbolic '
+                               'link; refusing to replace it')
+            for f in owned:
+                f.unlink()
         self.dir.mkdir(parents=True, exist_ok=True)
         self.file_name = file_name or f'{self.dir.name}_0.mcap'
-        self._fh = open(self.dir / self.file_name, 'wb')
+        fd = os.open(self.dir / self.file_name,
+                     os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_NOFOLLOW', 0), 0o644)
+        self._fh = os.fdopen(fd, 'wb')
         self._mcap = McapFileWriter(self._fh, profile='ros2', library=library)
         self._schemas: dict[str, int] = {}
         self.topics: dict[str, dict[str, Any]] = {}
@@ -222,7 +239,46 @@ class BagWriter:
         write_metadata_yaml(self.dir, meta)
 
 
+    def abort(self) -> None:
+        """Remove what this writer created (a run refused or failed before it started)."""
+        if not self.closed:
+            self.closed = True
+            self._fh.close()
+        (self.dir / self.file_name).unlink(missing_ok=True)
+        if self._created_dir:
+            try:
+                self.dir.rmdir()
+            except OSError:
+                pass                      # something else was put there meanwhile: keep it
+
+
+def bag_files(directory: Path) -> list[Path]:
+    """The files a bag directory's bag owns: metadata.yaml and <dir>_<n>.mcap."""
+    own = re.compile(re.escape(directory.name) + r'_\d+\.mcap')
+    return [f for f in directory.iterdir()
+            if f.name == 'metadata.yaml' or own.fullmatch(f.name)]
+
+
+def _inside(path: Path, roots) -> bool:
+    p = path.resolve()
+    return any(p == r or r in p.parents for r in (Path(x).resolve() for x in roots))
+
+
+#: directories no command writes into (the packaged reference bags; config.py adds them)
+READ_ONLY_DIRS: list[Path] = [Path(__file__).resolve().parents[1] / 'data']
+
+
 def write_metadata_yaml(directory: Path, meta: Mapping[str, Any]) -> None:
-    tmp = directory / 'metadata.yaml.tmp'
-    tmp.write_text(_yaml({'rosbag2_bagfile_information': dict(meta)}), encoding='utf-8')
-    os.replace(tmp, directory / 'metadata.yaml')
+    """metadata.yaml, written to a fresh temporary file (never through a planted link) and
+    moved into place, so that a reader never sees half of it."""
+    fd, tmp = tempfile.mkstemp(prefix='.metadata-', suffix='.yaml.tmp', dir=directory)
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(_yaml({'rosbag2_bagfile_information': dict(meta)}))
+        target = directory / 'metadata.yaml'
+        if target.is_symlink():
+            raise BagError(f'{str(target)!r} is a symbolic link; refusing to replace it')
+        os.replace(tmp, target)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)

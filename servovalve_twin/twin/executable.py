@@ -8,7 +8,7 @@ from typing import Sequence
 
 import rclpy
 
-from ..config import load_scenario
+from ..config import default_bag_dir, load_scenario
 from ..errors import TwinError
 from ..nodes.rosargs import init_context, ros_parameters, stray_arguments
 from ..physics.params import PARAM_NAMES
@@ -25,7 +25,7 @@ def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin twin --ros-args -p valve_model:=C4 -p scenario:=paper
     -p control_period:=0.001 [-p bag:=bags/my_run] [-p record:=false] [-p overwrite:=true]
     [-p monitor:=C2]``; other ``-p NAME:=VALUE`` set physical parameters. Recording is on by
-    default, into ``bags/<scenario>_<valve_model>``."""
+    default, into ``bags/<scenario>_<valve_model>_<UTC time>``."""
     argv = list(sys.argv if args is None else args)
     if stray_arguments(argv):
         print(USAGE, file=sys.stderr)
@@ -41,7 +41,7 @@ def main(args: Sequence[str] | None = None) -> int:
         overwrite = bool(values.pop('overwrite', False))
         monitor = values.pop('monitor', '') or None
         if record and not bag:
-            bag = f'bags/{load_scenario(scenario).name}_{valve_model}'
+            bag = default_bag_dir(load_scenario(scenario).name, valve_model)
         result = run_twin(valve_model, scenario, values, control_period=period,
                           bag=bag if record else None, context=context, keep_values=False,
                           monitor=monitor, overwrite=overwrite)

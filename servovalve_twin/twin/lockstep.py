@@ -143,8 +143,7 @@ class Twin:
         if not self.context.ok():
             rclpy.init(args=list(args) if args is not None else None, context=self.context,
                        domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-        self.writer = (BagWriter(bag, overwrite=overwrite, flush_every_ns=None)
-                       if bag is not None else None)
+        self.writer = None
         sim = Parameter('use_sim_time', Parameter.Type.BOOL, True)
         period = Parameter('control_period', Parameter.Type.DOUBLE, float(control_period))
         # the schedule nodes own the scenario loaded here, once; their parameter names it
@@ -186,6 +185,10 @@ class Twin:
                 topics.update(algorithm_topics(alg))
             types = {f'/{t}': _type_name(spec[0]) for t, spec in topics.items()}
             types['/clock'] = 'rosgraph_msgs/msg/Clock'
+            # the bag is opened once everything else has been accepted: a refused start-up
+            # leaves no bag behind
+            if bag is not None:
+                self.writer = BagWriter(bag, overwrite=overwrite, flush_every_ns=None)
             self.recorder = Recorder(self.writer, types, keep_values=keep_values)
             self.recorder.on_flush = on_flush
             #: the actuator's nodes: a scheduled fault goes to every one that reads its parameter
@@ -204,15 +207,18 @@ class Twin:
             self.executor = EXECUTORS[executor](context=self.context)
             for n in self.nodes:
                 self.executor.add_node(n)
-        except Exception:
+            self.plant.plant.compile()
+            if self.monitor is not None:
+                self.monitor.model.compile()
+            if self.writer is not None:
+                self.writer.add_metadata('servovalve_twin', provenance(
+                    valve_model, self.scenario, self.params, control_period))
+        except BaseException:          # a refusal, a failure or Ctrl-C during start-up
+            if self.writer is not None:
+                self.writer.abort()
+                self.writer = None
             self.close()
             raise
-        self.plant.plant.compile()
-        if self.monitor is not None:
-            self.monitor.model.compile()
-        if self.writer is not None:
-            self.writer.add_metadata('servovalve_twin', provenance(
-                valve_model, self.scenario, self.params, control_period))
         self.stop_requested = False
 
     def request_stop(self, *_: Any) -> None:

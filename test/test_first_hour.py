@@ -1,0 +1,152 @@
+"""A first hour without surprises (part of issue 12): the reference bag is safe, nothing is
+deleted that is not the bag's own, a refused start leaves nothing, corruption is detected."""
+
+import random
+import shutil
+
+import numpy as np
+import pytest
+
+from servovalve_twin.bag.reader import read_bag
+from servovalve_twin.bag.writer import BagWriter
+from servovalve_twin.cli import main
+from servovalve_twin.config import default_bag_dir, resolve_bag
+from servovalve_twin.errors import BagError, TwinError
+from servovalve_twin.twin import Twin, run_twin
+from conftest import ROOT
+
+REF = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
+SHORT = {'duration': 0.05, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.02, 5000.0]]}
+
+
+def _snapshot(d):
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir())}
+
+
+def test_the_reference_bag_is_read_only_to_every_command(ros_context, tmp_path, capsys):
+    before = _snapshot(REF)
+    assert resolve_bag('@paper_HD') == REF
+    with pytest.raises(BagError, match='packaged reference'):
+        BagWriter(REF, overwrite=True)
+    with pytest.raises(BagError, match='packaged reference'):
+        run_twin('C2', SHORT, bag=REF / 'inner', overwrite=True, context=ros_context,
+                 handle_signals=False)
+    assert main(['reindex', '@paper_HD']) == 2
+    assert main(['run', '--valve-model', 'HD', '--bag', str(REF), '--overwrite']) == 2
+    err = capsys.readouterr().err
+    assert 'packaged reference' in err
+    # compare and replay read it; the replay's default output is a new bag under bags/
+    assert main(['compare', '@paper_HD', '@paper_HD']) == 0
+    assert _snapshot(REF) == before
+
+
+def test_overwrite_replaces_only_the_bags_own_files(tmp_path):
+    d = tmp_path / 'run'
+    BagWriter(d).close()
+    assert sorted(p.name for p in d.iterdir()) == ['metadata.yaml', 'run_0.mcap']
+    (d / 'notes.yaml').write_text('mine\n')
+    (d / 'other.mcap').write_bytes(b'mine')
+    (d / 'run_7.mcap.bak').write_bytes(b'mine')
+    with pytest.raises(BagError, match='--overwrite'):
+        BagWriter(d)
+    w = BagWriter(d, overwrite=True)
+    w.add_topic('/x', 'std_msgs/msg/Float64')
+    w.write('/x', b'\x00\x01\x00\x00' + b'\x00' * 8, 0)
+    w.close()
+    assert (d / 'notes.yaml').read_text() == 'mine\n'
+    assert (d / 'other.mcap').read_bytes() == b'mine' and (d / 'run_7.mcap.bak').exists()
+    # a planted link is never followed: not as the temporary metadata file, nor as a bag file
+    victim = tmp_path / 'victim.txt'
+    victim.write_text('precious\n')
+    (d / 'metadata.yaml.tmp').symlink_to(victim)
+    w = BagWriter(d, overwrite=True)
+    w.close()
+    assert victim.read_text() == 'precious\n'
+    (d / 'metadata.yaml').unlink()
+    (d / 'metadata.yaml').symlink_to(victim)
+    with pytest.raises(BagError, match='symbolic link'):
+        BagWriter(d, overwrite=True)
+    assert victim.read_text() == 'precious\n'
+
+
+def test_default_bag_names_never_collide_and_stay_under_bags(tmp_path):
+    a = default_bag_dir('../../x', 'C2', root=tmp_path / 'bags')
+    assert a.parent == tmp_path / 'bags' and a.name.startswith('x_C2_')
+    a.mkdir(parents=True)
+    b = default_bag_dir('../../x', 'C2', root=tmp_path / 'bags')
+    assert b != a and b.parent == a.parent
+
+
+def test_a_refused_start_leaves_nothing_behind(ros_context, tmp_path, monkeypatch):
+    bag = tmp_path / 'refused'
+    with pytest.raises(TwinError, match='simplified'):
+        Twin('C2', SHORT, context=ros_context, bag=bag, monitor='HD')
+    assert not bag.exists()
+    bag.mkdir()
+    (bag / 'keep.txt').write_text('x')
+    with pytest.raises(TwinError):
+        Twin('C2', SHORT, context=ros_context, bag=bag, overwrite=True,
+             algorithms=['nope_module:X'])
+    assert sorted(p.name for p in bag.iterdir()) == ['keep.txt']
+    # an output path that cannot be written is refused before the run, leaving no bag
+    monkeypatch.chdir(tmp_path)
+    assert main(['run', '--valve-model', 'C2', '--scenario', 'defaults', '--out',
+                 'missing_dir/run.csv']) == 2
+    assert not (tmp_path / 'bags').exists()
+
+
+def test_byte_flips_are_detected_never_read_silently(ros_context, tmp_path):
+    """Every chunk, the data section and the summary carry a CRC: a flipped byte anywhere
+    either fails with one line or changes nothing that is read."""
+    bag = tmp_path / 'b'
+    run_twin('C2', SHORT, bag=bag, context=ros_context, handle_signals=False)
+    good = read_bag(bag)
+    data = (bag / 'b_0.mcap').read_bytes()
+    rng = random.Random(7)
+    detected = unchanged = 0
+    for pos in rng.sample(range(len(data)), 150):
+        flipped = bytearray(data)
+        flipped[pos] ^= 0xA5
+        d = tmp_path / f'f{pos}'
+        shutil.copytree(bag, d)
+        (d / 'b_0.mcap').write_bytes(bytes(flipped))
+        try:
+            run = read_bag(d)
+        except BagError:
+            detected += 1
+            continue
+        assert run.provenance == good.provenance and run.topics == good.topics, pos
+        for k in good.signals:
+            np.testing.assert_array_equal(run.signals[k], good.signals[k], err_msg=f'{pos} {k}')
+        unchanged += 1
+        shutil.rmtree(d)
+    print(f'{len(data)} bytes, 150 flips: {detected} detected, {unchanged} harmless')
+    assert detected > 100
+
+
+def test_reindex_reports_what_it_skipped(ros_context, tmp_path, capsys):
+    bag = tmp_path / 'cut'
+    run_twin('C2', dict(SHORT, duration=0.3), bag=bag, context=ros_context,
+             handle_signals=False)
+    f = bag / 'cut_0.mcap'
+    data = f.read_bytes()
+    (bag / 'metadata.yaml').unlink()
+    f.write_bytes(data[: len(data) * 2 // 3])
+    assert main(['reindex', str(bag)]) == 0
+    out, err = capsys.readouterr()
+    assert 'rebuilt' in out and 'skipped' in err and 'bytes from byte' in err
+    run = read_bag(bag)
+    assert run.valve_model == 'C2' and 0.0 < run.signals['t'][-1] < 0.3
+
+
+def test_compare_warns_when_the_runs_differ_in_more_than_the_model(ros_context, tmp_path,
+                                                                   capsys):
+    run_twin('C2', SHORT, bag=tmp_path / 'a', context=ros_context, handle_signals=False)
+    run_twin('C3', SHORT, {'M': 400.0}, bag=tmp_path / 'b', context=ros_context,
+             handle_signals=False)
+    run_twin('C3', SHORT, bag=tmp_path / 'c', context=ros_context, handle_signals=False)
+    assert main(['compare', str(tmp_path / 'a'), str(tmp_path / 'b')]) == 0
+    err = capsys.readouterr().err
+    assert 'warning: the runs were made with different parameters: M 500.0 vs 400.0' in err
+    assert main(['compare', str(tmp_path / 'a'), str(tmp_path / 'c')]) == 0
+    assert 'warning' not in capsys.readouterr().err
