@@ -113,7 +113,10 @@ def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:
     if not a.provenance or not b.provenance:
         return []
     out = []
-    pa, pb = a.params(), b.params()
+    from ..physics.params import DEFAULTS
+    # a parameter a bag does not list (recorded before it existed) had its default value
+    defaults = DEFAULTS.resolved()
+    pa, pb = {**defaults, **a.params()}, {**defaults, **b.params()}
     changed = sorted(k for k in set(pa) | set(pb) if pa.get(k) != pb.get(k))
     if changed:
         out.append('the runs were made with different parameters: ' + ', '.join(
