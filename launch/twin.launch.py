@@ -2,7 +2,8 @@
 
     ros2 launch servovalve_twin twin.launch.py valve_model:=HD scenario:=paper rate:=1.0
 
-It also starts the monitor node (``monitor_model:=C2``) beside the plant.
+It also starts the monitor node (``monitor_model:=C2``) beside the plant. The ECU and the plant
+are essential: when either exits (a bad parameter at start-up, say) the whole launch ends.
 
 A ``clock`` process publishes ``/clock`` at ``rate`` simulated seconds per wall second; every
 node runs with ``use_sim_time`` and its own timer at ``control_period``. Across processes the
@@ -15,7 +16,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
@@ -49,11 +50,13 @@ def generate_launch_description():
         Node(package='servovalve_twin', executable='command_generator',
              name='command_generator', output='screen',
              parameters=[common, {'scenario': scenario}]),
-        Node(package='servovalve_twin', executable='load_supply', name='scheduler',
+        Node(package='servovalve_twin', executable='load_supply', name='load_supply',
              output='screen', parameters=[common, {'scenario': scenario}]),
         Node(package='servovalve_twin', executable='ecu', name='ecu', output='screen',
+             on_exit=Shutdown(reason='ecu exited'),   # essential: ends the launch
              parameters=[eha, common]),
         Node(package='servovalve_twin', executable='plant', name='plant', output='screen',
+             on_exit=Shutdown(reason='plant exited'),   # essential: ends the launch
              parameters=[eha, common, {'valve_model': valve_model}]),
         Node(package='servovalve_twin', executable='monitor', name='monitor', output='screen',
              parameters=[eha, common,

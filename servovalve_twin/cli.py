@@ -102,7 +102,11 @@ def cmd_characteristic(args: argparse.Namespace) -> int:
     write_csv(args.out, curves)
     if args.plot:
         plot_characteristic({args.valve_model: curves}, args.plot, psr)
-    print(f'{args.valve_model}: P12(XS) at PSR={psr:g} Pa for QJ={qj} -> {args.out}')
+    import numpy as np
+    blank = int(np.isnan(curves['p12']).sum())
+    print(f'{args.valve_model}: P12(XS) at PSR={psr:g} Pa for QJ={qj} -> {args.out}'
+          + (f'; {blank} of {len(curves["p12"])} points have no steady state (nan, left blank '
+             'in the plot)' if blank else ''))
     return 0
 
 
@@ -191,6 +195,8 @@ def _run(args: argparse.Namespace) -> int:
           + (f'; bag {result.bag}' if result.bag else '') + (f'; CSV {args.out}' if args.out
                                                               else '')
           + ('; INTERRUPTED' if result.interrupted else ''))
+    for line in result.verdicts:
+        print(line)
     return 130 if result.interrupted else 0
 
 
@@ -329,6 +335,8 @@ def _parse_faults(items: list[str]) -> tuple[dict[str, list[float]], dict[str, t
                 raise ValueError
             if '~' in spec:
                 lo, hi = (float(v) for v in spec.split('~'))
+                if not lo < hi:
+                    raise TwinError(f'--fault {item}: the range LO~HI needs LO < HI')
                 ranges[name] = (lo, hi)
             else:
                 grid[name] = [float(v) for v in spec.split(',') if v.strip()]
@@ -360,6 +368,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     grid, ranges = _parse_faults(args.fault)
     if ranges and not args.draws:
         raise TwinError('a fault range NAME:LO~HI needs --draws N')
+    for opt in ('draws', 'nominal'):
+        if getattr(args, opt) < 0:
+            raise TwinError(f'--{opt} must be >= 0, got {getattr(args, opt)}')
+    if args.repeats < 1:
+        raise TwinError(f'--repeats must be >= 1, got {args.repeats}')
+    if args.workers is not None and args.workers < 1:
+        raise TwinError(f'--workers must be >= 1, got {args.workers}')
     cases = make_cases(plant_model=args.plant_model, monitor_model=args.monitor_model,
                        scenario=args.scenario, faults=grid, ranges=ranges, draws=args.draws,
                        nominal_runs=args.nominal, repeats=args.repeats,
@@ -384,7 +399,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 # -- parser ---------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
     parser = _Parser(prog='servovalve-twin', description=__doc__.splitlines()[0])
+    parser.add_argument('--version', action='version', version=f'servovalve-twin {__version__}')
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
 
     p = sub.add_parser('simulate', help='ROS-free run of a scenario to CSV')
@@ -536,7 +553,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 setattr(args, attr, str(resolve_bag(value)))
         return int(args.func(args) or 0)
     except TwinError as exc:
-        print(f'servovalve-twin {args.command}: error: {exc}', file=sys.stderr)
+        text = ' '.join(str(exc).split())            # one line, whatever the message holds
+        if len(text) > 600:
+            text = text[:600] + ' ...'
+        print(f'servovalve-twin {args.command}: error: {text}', file=sys.stderr)
         return 2
     except OSError as exc:
         what = f'{exc.strerror}: {exc.filename}' if exc.strerror and exc.filename else exc

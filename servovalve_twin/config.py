@@ -34,16 +34,46 @@ def builtin_scenarios() -> dict[str, Path]:
     return {p.stem: p for p in sorted((config_dir() / 'scenarios').glob('*.yaml'))}
 
 
+#: a scenario is a few kilobytes; anything this large is not one
+MAX_YAML_BYTES = 1_000_000
+
+
 def read_yaml(path: Path, what: str) -> Any:
+    """A YAML file as data: UTF-8, at most :data:`MAX_YAML_BYTES`, and without anchors or
+    aliases (a scenario needs none, and a 450-byte alias bomb expands to gigabytes)."""
     import yaml
     try:
-        with open(path, encoding='utf-8') as fh:
-            return yaml.safe_load(fh)
+        with open(path, 'rb') as fh:
+            raw = fh.read(MAX_YAML_BYTES + 1)
     except OSError as exc:
         raise ScenarioError(f'cannot read {what} {str(path)!r}: {exc.strerror}') from None
+    if len(raw) > MAX_YAML_BYTES:
+        raise ScenarioError(f'{what} {str(path)!r} is larger than {MAX_YAML_BYTES} bytes')
+    try:
+        text = raw.decode('utf-8')
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f'{what} {str(path)!r} is not UTF-8 text (byte {exc.start})'
+                            ) from None
+    return load_yaml_text(text, f'{what} {str(path)!r}')
+
+
+def load_yaml_text(text: str, what: str) -> Any:
+    import yaml
+
+    class _NoAliases(yaml.SafeLoader):
+        def compose_node(self, parent, index):
+            if self.check_event(yaml.AliasEvent):
+                raise ScenarioError(f'{what} uses a YAML alias (*name); write the values out')
+            event = self.peek_event()
+            if getattr(event, 'anchor', None):
+                raise ScenarioError(f'{what} uses a YAML anchor (&{event.anchor[:20]}); '
+                                    'write the values out')
+            return super().compose_node(parent, index)
+    try:
+        return yaml.load(text, Loader=_NoAliases)           # noqa: S506 -- a SafeLoader
     except yaml.YAMLError as exc:
-        raise ScenarioError(f'{what} {str(path)!r} is not valid YAML: '
-                            f'{str(exc).splitlines()[0]}') from None
+        raise ScenarioError(f'{what} is not valid YAML: {str(exc).splitlines()[0][:200]}'
+                            ) from None
 
 
 def load_scenario(spec: str | Path | Mapping[str, Any] | Scenario) -> Scenario:

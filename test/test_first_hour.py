@@ -150,3 +150,111 @@ def test_compare_warns_when_the_runs_differ_in_more_than_the_model(ros_context, 
     assert 'warning: the runs were made with different parameters: M 500.0 vs 400.0' in err
     assert main(['compare', str(tmp_path / 'a'), str(tmp_path / 'c')]) == 0
     assert 'warning' not in capsys.readouterr().err
+
+
+ALIAS_BOMB = ('a: &a [x, x, x, x, x, x, x, x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\n'
+              'c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b]\nd: &d [*c, *c, *c, *c, *c, *c, *c]\n'
+              'com: [*d, *d, *d, *d, *d, *d, *d, *d, *d]\n')
+
+
+def _write(tmp_path, name, data):
+    f = tmp_path / name
+    f.write_bytes(data if isinstance(data, bytes) else data.encode())
+    return str(f)
+
+
+BAD = [
+    # (command line with {dir} for the test directory, a fragment of the one-line message)
+    (['simulate', '--valve-model', 'C2', '--scenario', 'latin1.yaml', '--out', 'x.csv'],
+     'is not UTF-8 text'),
+    (['simulate', '--valve-model', 'C2', '--scenario', 'windows_list.yaml', '--out', 'x.csv'],
+     'scenario.windows: expected a mapping'),
+    (['simulate', '--valve-model', 'C2', '--scenario', 'windows_number.yaml', '--out', 'x.csv'],
+     'scenario.windows: expected a mapping'),
+    (['simulate', '--valve-model', 'C2', '--scenario', 'bomb.yaml', '--out', 'x.csv'],
+     'YAML anchor'),
+    (['simulate', '--valve-model', 'C2', '--scenario', 'negative_psr.yaml', '--out', 'x.csv'],
+     'PSR = -2e+07 Pa is outside [0, 1e+08] Pa'),
+    (['simulate', '--valve-model', 'C2', '--scenario', 'huge_psr.yaml', '--out', 'x.csv'],
+     'PSR = 1e+300 Pa is outside'),
+    (['simulate', '--valve-model', 'C2', '--ecu-period', '1e-300', '--out', 'x.csv'],
+     'shorter than DT'),
+    (['run', '--valve-model', 'C2', '--control-period', '1e-300', '--no-bag'],
+     'shorter than DT'),
+    (['simulate', '--valve-model', 'C2', '--scenario', 'long.yaml', '--out', 'x.csv'],
+     'GiB of memory'),
+    (['simulate', '--valve-model', 'C2', '--param', 'DT=1e-9', '--out', 'x.csv'],
+     'GiB of memory'),
+    (['sweep', '--fault', 'leakage_growth:5~1', '--draws', '2', '--out', 's'], 'LO < HI'),
+    (['sweep', '--fault', 'leakage_growth:5', '--workers', '-1', '--out', 's'],
+     '--workers must be >= 1'),
+    (['sweep', '--fault', 'leakage_growth:5', '--nominal', '-1', '--out', 's'],
+     '--nominal must be >= 0'),
+    (['sweep', '--fault', 'leakage_growth:1~5', '--draws', '-1', '--out', 's'],
+     '--draws must be >= 0'),
+    (['sweep', '--fault', 'leakage_growth:5', '--repeats', '-1', '--out', 's'],
+     '--repeats must be >= 1'),
+    (['compare', '@nope', '@paper_HD'], "unknown reference bag '@nope'"),
+]
+
+
+@pytest.mark.parametrize('args, fragment', BAD, ids=[' '.join(a[:4]) for a, _ in BAD])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys, args, fragment):
+    monkeypatch.chdir(tmp_path)
+    _write(tmp_path, 'latin1.yaml', 'name: caf\xe9\n'.encode('latin-1'))
+    _write(tmp_path, 'windows_list.yaml', 'windows: [[0.1, 0.2]]\n')
+    _write(tmp_path, 'windows_number.yaml', 'windows: 3\n')
+    _write(tmp_path, 'bomb.yaml', ALIAS_BOMB)
+    _write(tmp_path, 'negative_psr.yaml', 'psr: [[0.0, -2.0e+7]]\n')
+    _write(tmp_path, 'huge_psr.yaml', 'psr: [[0.0, 1.0e+300]]\n')
+    _write(tmp_path, 'long.yaml', 'duration: 3600.0\n')
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    print(err.strip())
+    assert fragment in err and err.count('\n') == 1 and 'Traceback' not in err, err
+    assert len(err) < 700
+    assert sorted(p.name for p in tmp_path.iterdir()) == before      # nothing left behind
+
+
+def test_nodes_refuse_misspelt_parameters_and_accept_integers_for_doubles(tmp_path):
+    import subprocess
+    from conftest import console_script
+    r = subprocess.run([console_script('plant'), '--ros-args', '-p', 'valve_modle:=HD'],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "no parameter 'valve_modle'" in r.stderr
+    r = subprocess.run([console_script('plant'), '--ros-args', '--params-file',
+                        str(tmp_path / 'missing.yaml')], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2 and "Couldn't parse params file" in r.stderr
+    assert 'Traceback' not in r.stderr
+    r = subprocess.run([console_script('plant'), '--help'], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and r.stdout.startswith('usage: plant') and 'valve_model' in r.stdout
+    latin = tmp_path / 'latin1.yaml'
+    latin.write_bytes('name: caf\xe9\n'.encode('latin-1'))
+    r = subprocess.run([console_script('load_supply'), '--ros-args', '-p',
+                        f'scenario:={latin}'], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and 'not UTF-8' in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_integer_for_a_double_and_out_of_range_supply(ros_context):
+    from std_msgs.msg import Float64
+    from rclpy.parameter import Parameter
+    from servovalve_twin.nodes.plant import Plant
+    node = Plant(context=ros_context, parameter_overrides=[Parameter('M', value=400)])
+    try:
+        assert node.plant.params.M == 400.0
+        assert node.set_parameters([Parameter('CJ', value=2500)])[0].successful
+        assert node.plant.params.CJ == 2500.0
+        for bad in (-1.0, 1e300):
+            node.io.push('psr', Float64(data=bad))
+            assert node.io.latest['psr'] == node.params.PSRN        # dropped, not integrated
+        # /p1, /p2 exist only while a model with port pressures is in force
+        assert 'p1' not in node.pubs
+        assert node.set_parameters([Parameter('valve_model', value='HD')])[0].successful
+        assert {'p1', 'p2'} <= set(node.pubs)
+        node.set_parameters([Parameter('valve_model', value='C2')])
+        assert 'p1' not in node.pubs
+    finally:
+        node.destroy_node()

@@ -46,11 +46,11 @@ def test_schema_of_the_issue_loads(tmp_path):
 
 def test_ramp_and_sine():
     s = load_scenario({'duration': 1.0, 'com': {'ramp': [[0, 0], [0.5, 1.0]]},
-                       'psr': {'sine': {'offset': 1.0, 'amplitude': 2.0, 'frequency': 1.0,
-                                        'start': 0.25}}})
+                       'fr': {'sine': {'offset': 1.0, 'amplitude': 2.0, 'frequency': 1.0,
+                                       'start': 0.25}}})
     t_ns = np.rint(np.array([0.0, 0.25, 0.5, 0.75]) * 1e9).astype(np.int64)
     assert np.allclose(s.com.values(t_ns), [0, 0.5, 1.0, 1.0])
-    assert np.allclose(s.psr.values(t_ns), [1.0, 1.0, 3.0, 1.0], atol=1e-12)
+    assert np.allclose(s.fr.values(t_ns), [1.0, 1.0, 3.0, 1.0], atol=1e-12)
 
 
 @pytest.mark.parametrize('raw,fragment', [

@@ -12,6 +12,7 @@ Parameters: ``class`` (``package.module:ClassName``, read-only), the algorithm's
 
 from __future__ import annotations
 
+import math
 from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -61,6 +62,8 @@ class AlgorithmNode(TwinNode):
         self.level = 0
         self._last_diag_ns: int | None = None
         self.error: str | None = None
+        self.first_level: dict[int, float] = {}    # level -> first time [s] it was reached
+        self.peaks: dict[str, float] = {}          # output -> largest value
         table = algorithm_topics(algorithm)
         self.add_publishers(table, table)
         self.start_inputs({s: _DEFAULT_INPUT.get(s, 0.0) for s in algorithm.inputs})
@@ -102,8 +105,12 @@ class AlgorithmNode(TwinNode):
         prefix = self.alg.topic_prefix
         for name, v in outputs.items():
             self.emit_value(f'{prefix}/{name}', v)
+            if not v <= self.peaks.get(name, -math.inf):
+                self.peaks[name] = v
         if health is None:
             return
+        for level in range(1, health.level + 1):
+            self.first_level.setdefault(level, t_ns * 1e-9)
         period_ns = int(round(self.get_parameter('diagnostics_period').value * 1e9))
         if (health.level != self.level or self._last_diag_ns is None
                 or t_ns - self._last_diag_ns >= period_ns):
@@ -130,3 +137,12 @@ def main(args: Sequence[str] | None = None) -> int:
 
 
 __all__ = ['AlgorithmNode', 'algorithm_topics', 'main']
+
+
+def verdict(node: AlgorithmNode) -> str:
+    """One line: the first WARN and ERROR times and the peak outputs of a hosted algorithm."""
+    first = node.first_level
+    when = ', '.join(f'first {n} at {first[lv]:.3f} s' if lv in first else f'no {n}'
+                     for lv, n in ((1, 'WARN'), (2, 'ERROR')))
+    peaks = ', '.join(f'{k} {v:.4g}' for k, v in node.peaks.items() if 'residual' not in k)
+    return f'{node.alg.title}: {when}; peak {peaks}'

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import signal
 import sys
+from pathlib import Path
 from collections import deque
 from typing import Any, Callable, Iterable, Sequence
 
@@ -190,6 +191,11 @@ class TwinNode(Node):
         self.emit(topic, msg)
 
 
+#: physical bounds of an input topic: a value outside is dropped like a NaN (a 1e300 or negative
+#: supply pressure would otherwise be integrated and published as P12 = +-1e300)
+INPUT_LIMITS = {'psr': (0.0, 1.0e8)}
+
+
 class LockstepInputs:
     """A node's Float64 inputs: the latest value of each (alone, a timer reads those) and, in
     the lockstep, a queue per input from which each tick takes exactly one value, in arrival
@@ -209,6 +215,11 @@ class LockstepInputs:
     def push(self, name: str, msg: Float64) -> None:
         v = finite_or_none(msg.data, name, self.node)
         if v is None:
+            return
+        lo, hi = INPUT_LIMITS.get(name, (-math.inf, math.inf))
+        if not lo <= v <= hi:
+            self.node.get_logger().error(f'ignored {name} = {v!r} outside [{lo:g}, {hi:g}]; '
+                                         'keeping the last value', throttle_duration_sec=1.0)
             return
         self.latest[name] = v
         if self.lockstep:
@@ -285,6 +296,9 @@ def declare_physical(node: Node, names: Iterable[str],
                                                step=1)]
         else:
             desc.type = ParameterType.PARAMETER_DOUBLE
+            # `-p M:=400` (an integer for a double) is a value, not a type error: the set is
+            # checked and coerced by the node's own validation
+            desc.dynamic_typing = True
             lo = 0.0 if r['derived'] else float(r['lo'])
             desc.floating_point_range = [FloatingPointRange(from_value=lo,
                                                             to_value=float(r['hi']), step=0.0)]
@@ -321,6 +335,19 @@ def validation_result(fn: Callable[[], Any]) -> SetParametersResult:
 
 # -- standalone entry point -----------------------------------------------------------------
 
+def _refuse_unknown_parameters(node: Node) -> None:
+    """A ``-p NAME:=VALUE`` the node does not declare is a misspelling, unless it is a physical
+    parameter another node reads (one ``--params-file config/eha.yaml`` serves every node)."""
+    from ..physics.params import PARAM_NAMES
+    given = getattr(node, '_parameter_overrides', {}) or {}
+    unknown = sorted(n for n in given if not node.has_parameter(n) and n not in PARAM_NAMES
+                     and not n.startswith('qos_overrides.'))
+    if unknown:
+        declared = sorted(n for n in node._parameters if n not in PARAM_NAMES)
+        raise TwinError(f'node {node.get_name()} has no parameter {unknown[0]!r}; it declares '
+                        f'{declared} and the physical parameters it reads')
+
+
 def describe(node: Node) -> str:
     """What a node runs with, in one line: its models, control period and time source."""
     parts = []
@@ -344,17 +371,28 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
     the executor waits at most 0.1 s at a time (a sim-time timer whose ``/clock`` stopped never
     fires), sees it and leaves, and the ``finally`` below shuts down in order.
     """
+    argv = list(args) if args is not None else list(sys.argv)
+    plain = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    if plain:
+        doc = (getattr(factory, '__doc__', None) or '').strip()
+        print(f'usage: {Path(argv[0]).name} [--ros-args -p NAME:=VALUE ... '
+              f'[--params-file FILE]]\n\n{doc}')
+        return 0 if plain[0] in ('-h', '--help') else 2
     stop = []
 
     def request_stop(*_):
         stop.append(True)
     signal.signal(signal.SIGTERM, request_stop)
     signal.signal(signal.SIGINT, request_stop)
-    rclpy.init(args=list(args) if args is not None else sys.argv,
-               signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    except rclpy._rclpy_pybind11.RCLError as exc:       # e.g. a params file that is missing
+        print(f'error: {" ".join(str(exc).split(", at ")[0].split())}', file=sys.stderr)
+        return 2
     node = executor = None
     try:
         node = factory()
+        _refuse_unknown_parameters(node)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         # one start-up line; it also tells a supervisor (and the tests) that the signal

@@ -47,7 +47,8 @@ class Plant(TwinNode):
         self.plant = EhaPlant(self.get_parameter('valve_model').value, self.params)
         self.n_sub = steps_per(self.period, self.params, 'control_period')
         self._joint = None                 # the JointState message, refilled every tick
-        self.add_publishers(STATE_TOPICS + VALVE_TOPICS + ('joint_states',))
+        self.add_publishers(STATE_TOPICS + ('p12', 'qj', 'joint_states'))
+        self._advertise_ports()
         # alone: Cor 0 A, FR 0 N and PSR = PSRN until the first messages arrive
         self.start_inputs({'cor': 0.0, 'fr': 0.0, 'psr': self.params.PSRN})
         self.start()
@@ -67,8 +68,19 @@ class Plant(TwinNode):
         if name is not None and name != self.plant.model.name:
             old = self.plant.model.name
             self.plant.set_valve_model(name)
+            self._advertise_ports()
             self.get_logger().info(f'valve model {old} -> {name}; mechanical state kept'
                                    f' (XJ = {self.plant.xj:.6g} m)')
+
+    def _advertise_ports(self) -> None:
+        """/p1 and /p2 exist while a model with port pressures (HD) is in force."""
+        if self.plant.model.has_ports:
+            self.add_publishers([t for t in ('p1', 'p2') if t not in self.pubs])
+        else:
+            for t in ('p1', 'p2'):
+                pub = self.pubs.pop(t, None)
+                if pub is not None:
+                    self.destroy_publisher(pub)
 
     # -- ticks --------------------------------------------------------------------------
     def begin_tick(self, t_ns: int, n_sub: int) -> None:

@@ -15,7 +15,8 @@ from .valves import get_valve_model
 def characteristic(valve_model: str, params: EhaParams, psr: float, qj: Sequence[float],
                    n_points: int = 401) -> dict[str, np.ndarray]:
     """P12 against XS over [-XSM, XSM] for each QJ (rows: every XS for the first QJ, then the
-    next...). HD adds the port pressures P1, P2. The sweep warm-starts each point from the
+    next...). HD adds the port pressures P1, P2. A point without a steady state is NaN (blank
+    in the CSV and the plot); ``np.isnan(out['p12']).sum()`` counts them. The sweep warm-starts each point from the
     previous one, as a slow quasi-static test-bench sweep would.
 
     The compressible HD option describes dynamics, not a static curve: the characteristic is
@@ -34,12 +35,15 @@ def characteristic(valve_model: str, params: EhaParams, psr: float, qj: Sequence
         vs = model.initial_state(p)
         for xs in xs_grid:
             p12 = model.fn(float(xs), float(q), float(psr), P, vs)
-            if vs[V_FAIL]:
-                raise ModelError(f'{model.name} failed to converge at XS={xs:g} m, QJ={q:g}')
+            failed = bool(vs[V_FAIL])
+            if failed:
+                # no steady state here (e.g. HD at null with a tiny clearance and a forced
+                # flow): a blank point, counted, and the sweep goes on from rest
+                vs = model.initial_state(p)
             cols['xs'].append(float(xs))
             cols['qj'].append(float(q))
-            cols['p12'].append(float(p12))
+            cols['p12'].append(np.nan if failed else float(p12))
             if model.has_ports:
-                cols['p1'].append(float(vs[V_P1]))
-                cols['p2'].append(float(vs[V_P2]))
+                cols['p1'].append(np.nan if failed else float(vs[V_P1]))
+                cols['p2'].append(np.nan if failed else float(vs[V_P2]))
     return {k: np.array(v) for k, v in cols.items()}

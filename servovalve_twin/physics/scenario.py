@@ -33,19 +33,27 @@ _DEFAULT_VALUE = {'com': 0.0, 'fr': 0.0, 'psr': 20.0e6}
 _KEYS = {'name', 'description', 'duration', 'params', 'windows', 'faults'} | set(SIGNALS)
 _SINE_KEYS = {'offset', 'amplitude', 'frequency', 'phase', 'start'}
 _MAX_DURATION = 3600.0
+#: the supply-return pressure the models accept: PSRN's upper bound
+_PSR_MAX = 1.0e8
 
 
 def _number(value: Any, where: str) -> float:
     """A finite float from a number or a numeric string (YAML 1.1 reads ``2e-13`` as text)."""
     if isinstance(value, bool):
-        raise ScenarioError(f'{where}: expected a number, got {value!r}')
+        raise ScenarioError(f'{where}: expected a number, got {_short(value)}')
     try:
         x = float(value)
     except (TypeError, ValueError):
-        raise ScenarioError(f'{where}: expected a number, got {value!r}') from None
+        raise ScenarioError(f'{where}: expected a number, got {_short(value)}') from None
     if not math.isfinite(x):
-        raise ScenarioError(f'{where}: expected a finite number, got {value!r}')
+        raise ScenarioError(f'{where}: expected a finite number, got {_short(value)}')
     return x
+
+
+def _short(value: Any, limit: int = 120) -> str:
+    """A value's repr for an error line, cut to ``limit`` characters."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + f'... ({len(text)} characters)'
 
 
 def _ns(t: float) -> int:
@@ -169,14 +177,18 @@ def _profile(raw: Any, signal: str, duration: float) -> Profile:
                      for k in ('offset', 'amplitude', 'frequency', 'phase', 'start'))
         if vals[2] < 0:
             raise ScenarioError(f'{where}.frequency must be >= 0 Hz, got {vals[2]}')
+        if signal == 'psr' and not (0.0 <= vals[0] - abs(vals[1])
+                                    and vals[0] + abs(vals[1]) <= _PSR_MAX):
+            raise ScenarioError(f'{where}: PSR swings over [{vals[0] - abs(vals[1]):g}, '
+                                f'{vals[0] + abs(vals[1]):g}] Pa, outside [0, {_PSR_MAX:g}] Pa')
         return Profile('sine', sine=vals)
     if not isinstance(raw, (list, tuple)) or not raw:
         raise ScenarioError(f'{where}: expected a non-empty list of [t, value] breakpoints, '
-                            f'got {raw!r}')
+                            f'got {_short(raw)}')
     points = []
     for i, item in enumerate(raw):
         if not isinstance(item, (list, tuple)) or len(item) != 2:
-            raise ScenarioError(f'{where}[{i}]: expected [t, value], got {item!r}')
+            raise ScenarioError(f'{where}[{i}]: expected [t, value], got {_short(item)}')
         points.append((_number(item[0], f'{where}[{i}] time'),
                        _number(item[1], f'{where}[{i}] value')))
     times = [t for t, _ in points]
@@ -187,6 +199,10 @@ def _profile(raw: Any, signal: str, duration: float) -> Profile:
     if times[-1] > duration:
         raise ScenarioError(f'{where}: breakpoint at t = {times[-1]} s lies after the duration '
                             f'{duration} s')
+    if signal == 'psr':
+        bad = [v for _, v in points if not 0.0 <= v <= _PSR_MAX]
+        if bad:
+            raise ScenarioError(f'{where}: PSR = {bad[0]:g} Pa is outside [0, {_PSR_MAX:g}] Pa')
     return Profile(kind, tuple(points))
 
 
@@ -211,7 +227,8 @@ def scenario_from_dict(raw: Mapping[str, Any], name: str = 'scenario') -> Scenar
     profiles = {s: _profile(raw.get(s), s, duration) for s in SIGNALS}
     params = raw.get('params') or {}
     if not isinstance(params, Mapping):
-        raise ScenarioError(f'scenario.params must be a mapping NAME: value, got {params!r}')
+        raise ScenarioError('scenario.params must be a mapping NAME: value, got '
+                            f'{_short(params)}')
     from .params import ParameterError, coerce, make_params
     try:
         params = {str(k): coerce(str(k), v) for k, v in params.items()}
@@ -219,9 +236,14 @@ def scenario_from_dict(raw: Mapping[str, Any], name: str = 'scenario') -> Scenar
     except ParameterError as exc:
         raise ScenarioError(f'scenario.params: {exc}') from None
     windows = {}
-    for wname, span in (raw.get('windows') or {}).items():
+    raw_windows = raw.get('windows') or {}
+    if not isinstance(raw_windows, Mapping):
+        raise ScenarioError(f'scenario.windows: expected a mapping NAME: [t0, t1], got '
+                            f'{_short(raw_windows)}')
+    for wname, span in raw_windows.items():
         if not isinstance(span, (list, tuple)) or len(span) != 2:
-            raise ScenarioError(f'scenario.windows.{wname}: expected [t0, t1], got {span!r}')
+            raise ScenarioError(f'scenario.windows.{wname}: expected [t0, t1], got '
+                                f'{_short(span)}')
         t0, t1 = (_number(v, f'scenario.windows.{wname}') for v in span)
         if not 0.0 <= t0 < t1 <= duration:
             raise ScenarioError(f'scenario.windows.{wname}: need 0 <= t0 < t1 <= duration, '
@@ -247,5 +269,5 @@ def as_scenario(spec: Mapping[str, Any] | Scenario) -> Scenario:
     if isinstance(spec, Mapping):
         return scenario_from_dict(spec)
     raise ScenarioError(f'expected a Scenario or a mapping, got {type(spec).__name__} '
-                        f'{spec!r}; load names and files with servovalve_twin.config.'
+                        f'{_short(spec)}; load names and files with servovalve_twin.config.'
                         'load_scenario')

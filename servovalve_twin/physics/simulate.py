@@ -27,6 +27,10 @@ from .servovalve import S_DXJ, S_SIZE, S_XJ, S_XS
 from .valves import ValveModel, get_valve_model
 
 OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
+# the per-step arrays simulate() builds (time, Com, FR, PSR, fault segment: 5 x 8 bytes) and the
+# most it will allocate for them: a long run at a fine DT is refused up front, not by the OS
+_BYTES_PER_STEP = 40
+MAX_RUN_BYTES = 4 * 2**30
 CSV_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj')
 PORT_COLUMNS = ('p1', 'p2')
 SIGNAL_UNITS = dict(t='s', com='m', fr='N', psr='Pa', cor='A', xs='m', xj='m', dxj='m/s',
@@ -44,6 +48,8 @@ def steps_per(period_s: float, params: EhaParams, what: str) -> int:
     if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
         raise ParameterError(f'{what} must be a positive number of seconds, got {period_s!r}')
     period_ns = int(round(period_s * 1e9))
+    if period_ns < params.dt_ns:
+        raise ParameterError(f'{what} = {period_s} s is shorter than DT = {params.DT} s')
     if abs(period_s * 1e9 - period_ns) > 1e-6 or period_ns % params.dt_ns:
         raise ParameterError(f'{what} = {period_s} s must be a whole multiple of DT = '
                              f'{params.DT} s')
@@ -95,6 +101,12 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     n_steps = scn.duration_ns // p.dt_ns
     if n_steps * p.dt_ns != scn.duration_ns:
         raise ParameterError(f'duration {scn.duration} s is not a whole number of DT = {p.DT} s')
+    need = (n_steps + 1) * _BYTES_PER_STEP
+    if need > MAX_RUN_BYTES:
+        raise ParameterError(f'a run of {scn.duration:g} s at DT = {p.DT:g} s ({n_steps} steps) '
+                             f'would need {need / 2**30:.1f} GiB of memory for its inputs; '
+                             f'the limit is {MAX_RUN_BYTES / 2**30:.0f} GiB (shorten the run or '
+                             'raise DT)')
     t_ns = np.arange(n_steps + 1, dtype=np.int64) * p.dt_ns
     com, fr, psr = scn.inputs(t_ns)
     kernels, seg = _fault_segments(model, scn, p, t_ns)

@@ -47,7 +47,7 @@ from ..errors import TwinError
 from ..nodes.clock import clock_msg
 from ..nodes.common import TOPICS
 from ..nodes.ecu import Ecu
-from ..nodes.algorithm import AlgorithmNode, algorithm_topics
+from ..nodes.algorithm import AlgorithmNode, algorithm_topics, verdict
 from ..nodes.monitor import MONITOR_TOPICS, Monitor
 from ..nodes.plant import Plant
 from ..nodes.sources import CommandGenerator, LoadSupply
@@ -97,6 +97,7 @@ class TwinResult:
     bag: Path | None = None
     signals: dict[str, np.ndarray] | None = None
     messages: int = 0
+    verdicts: list[str] = dataclasses.field(default_factory=list)   # monitor and algorithms
 
 
 class Twin:
@@ -269,7 +270,8 @@ class Twin:
                             ticks=k + 1, wall_s=wall, interrupted=k < n_ticks,
                             simulated_s=min(k + 1, n_ticks) * self.period_ns * 1e-9,
                             bag=self.writer.dir if self.writer else None,
-                            messages=self.recorder.count)
+                            messages=self.recorder.count,
+                            verdicts=[verdict(n) for n in self.observers])
         if self.recorder.keep_values:
             result.signals = self._signals()
         return result
