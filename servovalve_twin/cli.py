@@ -86,7 +86,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     write_csv(args.out, result.signals)
     info = ', '.join(f'{k}={v}' for k, v in result.info.items() if k != 'wall_s')
     print(f'{result.valve_model} on {result.scenario.name}: {len(result["t"])} rows -> '
-          f'{args.out} ({result.info["wall_s"] * 1e3:.1f} ms of physics; {info})')
+          f'{"stdout" if args.out == "-" else args.out} ({result.info["wall_s"] * 1e3:.1f} ms; '
+          f'{info})', file=sys.stderr if args.out == '-' else sys.stdout)
     return 0
 
 
@@ -260,9 +261,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         write_json(args.json, dict(ref=str(args.ref), run=str(args.run), windows=windows,
                                    metrics=metrics, tolerances=tolerances))
     if args.plot:
+        named = {k: v for k, v in windows.items() if not k.startswith('phase')}
         plot_overlay({Path(args.ref).stem: ref, Path(args.run).stem: run}, args.plot,
                      reference=Path(args.ref).stem, title=f'{Path(args.run).stem} against '
-                     f'{Path(args.ref).stem}')
+                     f'{Path(args.ref).stem}', windows=named, inputs=True)
     bad = exceeded(metrics, tolerances)
     for line in bad:
         print(f'tolerance exceeded: {line}')
@@ -403,23 +405,32 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog='servovalve-twin', description=__doc__.splitlines()[0])
     parser.add_argument('--version', action='version', version=f'servovalve-twin {__version__}')
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
+    add_parser = sub.add_parser
+
+    def described(name, **kw):              # every subcommand's --help opens with its purpose
+        kw.setdefault('description', kw.get('help'))
+        return add_parser(name, **kw)
+    sub.add_parser = described
 
     p = sub.add_parser('simulate', help='ROS-free run of a scenario to CSV')
     _add_run_options(p)
     p.add_argument('--ecu-period', type=_positive_float, metavar='S',
                    help='sample the ECU with this period (a multiple of DT); default continuous')
-    p.add_argument('--out', required=True, metavar='FILE.csv')
+    p.add_argument('--out', required=True, metavar='FILE.csv',
+                   help="the 1 ms rows t,com,fr,psr,cor,xs,xj,dxj,p12,qj (HD adds p1,p2), SI; "
+                        "'-' writes to standard output")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser('characteristic', help="the paper's Fig. 3: P12 against XS per QJ")
-    p.add_argument('--valve-model', required=True, metavar='NAME')
+    p.add_argument('--valve-model', required=True, metavar='NAME',
+                   help='a registered valve model (servovalve-twin --help lists them)')
     p.add_argument('--psr', type=_positive_float, metavar='PA', help='default PSRN')
     p.add_argument('--qj', type=_float_list, metavar='Q1,Q2,...',
                    help='working flows [m^3/s] (default 0,4e-5,8e-5,1.2e-4)')
     p.add_argument('--points', type=int, default=401, help='XS samples over [-XSM, XSM]')
     _add_param_options(p)
-    p.add_argument('--out', required=True, metavar='FILE.csv')
-    p.add_argument('--plot', metavar='FILE.png')
+    p.add_argument('--out', required=True, metavar='FILE.csv', help='columns xs,qj,p12 (HD: p1,p2)')
+    p.add_argument('--plot', metavar='FILE.png', help='also draw the curves (paper Fig. 3)')
     p.set_defaults(func=cmd_characteristic)
 
     p = sub.add_parser('calibrate', help='XSS, GPN, GQN, GPQ, k of the simplified models from HD')
@@ -431,7 +442,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('report', help='every model against HD on the paper scenario: table '
                                       'and figures (optionally into the README)')
-    p.add_argument('--out-dir', default='docs/figures', metavar='DIR')
+    p.add_argument('--out-dir', default='docs/figures', metavar='DIR',
+                   help='where the figures go (default docs/figures)')
     p.add_argument('--readme', metavar='README.md',
                    help='replace the results section of this README')
     _add_param_options(p)
@@ -460,10 +472,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser('compare', help='errors of a run against a reference (bags or CSVs)')
-    p.add_argument('ref', metavar='REF')
-    p.add_argument('run', metavar='RUN')
-    p.add_argument('--plot', metavar='FILE.png')
-    p.add_argument('--json', metavar='FILE')
+    p.add_argument('ref', metavar='REF', help='the reference: a bag, a simulate CSV, or @paper_HD')
+    p.add_argument('run', metavar='RUN', help='the run compared with it (bag or CSV)')
+    p.add_argument('--plot', metavar='FILE.png', help='overlay of both runs (paper Figs. 19-23)')
+    p.add_argument('--json', metavar='FILE', help='the metrics as JSON')
     p.add_argument('--tolerance', action='append', default=[], metavar='SIGNAL=MAX',
                    help='exit 1 when the whole-run max error of SIGNAL (xj, dxj, p12, xs, cor; '
                         'SI units) exceeds MAX (repeatable)')
@@ -471,7 +483,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('replay', help="drive the ECU and plant with a bag's inputs, record, "
                                       'compare with the bag')
-    p.add_argument('bag', metavar='BAG')
+    p.add_argument('bag', metavar='BAG', help='the recorded bag (or @paper_HD)')
     p.add_argument('--valve-model', metavar='NAME', help="default: the bag's")
     p.add_argument('--out', metavar='DIR', help='new bag (default BAG_replay_<model>)')
     _add_param_options(p)
@@ -479,14 +491,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('sweep', help='fault sweeps (grid or Monte-Carlo) with a monitor model: '
                                      'a labelled dataset for prognostics')
-    p.add_argument('--plant-model', default='HD', metavar='NAME')
-    p.add_argument('--monitor-model', default='C2', metavar='NAME')
+    p.add_argument('--plant-model', default='HD', metavar='NAME',
+                   help='the valve model of the simulated actuators (default HD)')
+    p.add_argument('--monitor-model', default='C2', metavar='NAME',
+                   help='the simplified model of the monitor (default C2)')
     p.add_argument('--algorithm', metavar='MOD:CLASS',
                    help='score your Algorithm (its ERROR health = detection) instead of the '
                         'monitor')
     p.add_argument('--algorithm-param', action='append', default=[], metavar='NAME=VALUE',
                    help='set a parameter of the algorithm (repeatable)')
-    p.add_argument('--scenario', default='paper', metavar='paper|FILE.yaml')
+    p.add_argument('--scenario', default='paper', metavar='paper|FILE.yaml',
+                   help='the scenario every run flies (default paper)')
     p.add_argument('--fault', action='append', default=[], metavar='NAME:S1,S2|NAME:LO~HI',
                    help='fault and severities (repeatable); `servovalve-twin faults` lists them')
     p.add_argument('--draws', type=int, default=0, help='Monte-Carlo runs per fault range')
@@ -495,11 +510,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--vary', action='append', default=[], metavar='PARAM=SPREAD',
                    help='draw PARAM uniformly within +-SPREAD (relative) in every run')
     p.add_argument('--onset', type=float, default=0.1, help='fault onset [s] (default 0.1)')
-    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--seed', type=int, default=0, help='random seed of the draws (default 0)')
     p.add_argument('--workers', type=int, help='local processes (default: one per core)')
     p.add_argument('--scheduler', metavar='ADDRESS', help='run on this Dask scheduler')
     _add_param_options(p)
-    p.add_argument('--out', required=True, metavar='DIR')
+    p.add_argument('--out', required=True, metavar='DIR',
+                   help='dataset.csv, traces.npz, summary.json, signature.png go here')
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser('play', help='put a rosbag2 bag (MCAP or sqlite3, any version) back on '
@@ -537,7 +553,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_faults)
 
     p = sub.add_parser('reindex', help='rebuild a bag (and metadata.yaml) cut short by a kill')
-    p.add_argument('bag', metavar='BAG')
+    p.add_argument('bag', metavar='BAG', help='the bag directory or its .mcap file')
     p.set_defaults(func=cmd_reindex)
     return parser
 
@@ -558,6 +574,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             text = text[:600] + ' ...'
         print(f'servovalve-twin {args.command}: error: {text}', file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader went away (`... --out - | head`): quiet, as command-line tools are
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
     except OSError as exc:
         what = f'{exc.strerror}: {exc.filename}' if exc.strerror and exc.filename else exc
         print(f'servovalve-twin {args.command}: error: {what}', file=sys.stderr)

@@ -5,6 +5,7 @@ of runs (``simulate --out``)."""
 from __future__ import annotations
 
 import csv
+import sys
 import time
 from pathlib import Path
 from typing import Any, Mapping
@@ -34,14 +35,22 @@ def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
 
 
 def write_csv(path: str | Path, signals: Mapping[str, np.ndarray]) -> None:
-    """CSV with a header row; 17 significant digits so that values round-trip exactly."""
+    """CSV with a header row; 17 significant digits so that values round-trip exactly. ``-``
+    writes to standard output."""
     cols = list(signals)
     rows = np.column_stack([np.asarray(signals[c], dtype=float) for c in cols])
-    with open(path, 'w', newline='', encoding='utf-8') as fh:
+
+    def write(fh):
         w = csv.writer(fh)
         w.writerow(cols)
         for r in rows:
             w.writerow([repr(float(v)) for v in r])
+    if str(path) == '-':
+        write(sys.stdout)
+        sys.stdout.flush()
+        return
+    with open(path, 'w', newline='', encoding='utf-8') as fh:
+        write(fh)
 
 
 def read_csv(path: str | Path, require: tuple[str, ...] = ()) -> dict[str, np.ndarray]:

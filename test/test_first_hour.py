@@ -258,3 +258,43 @@ def test_integer_for_a_double_and_out_of_range_supply(ros_context):
         assert 'p1' not in node.pubs
     finally:
         node.destroy_node()
+
+
+def test_every_subcommand_and_option_explains_itself(capsys):
+    import argparse
+    import subprocess
+    import sys
+    from servovalve_twin import __version__
+    from servovalve_twin.cli import build_parser
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, sp in sub.choices.items():
+        assert sp.description, name
+        missing = [a.dest for a in sp._actions if not a.help and a.dest != 'help']
+        assert not missing, (name, missing)
+    r = subprocess.run([sys.executable, '-m', 'servovalve_twin', '--version'],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == f'servovalve-twin {__version__}'
+
+
+def test_csv_to_stdout_and_a_closed_pipe_is_quiet(tmp_path):
+    import subprocess
+    import sys
+    cmd = [sys.executable, '-m', 'servovalve_twin', 'simulate', '--valve-model', 'C2',
+           '--out', '-']
+    full = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert full.returncode == 0 and full.stdout.splitlines()[0].startswith('t,com,fr,psr')
+    assert len(full.stdout.splitlines()) == 1002 and 'rows -> stdout' in full.stderr
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.readline()
+    proc.stdout.close()                                # the reader goes away (| head -1)
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=300) == 0 and 'Traceback' not in err and 'error' not in err, err
+
+
+def test_a_ros1_bag_is_named_as_such(tmp_path, capsys):
+    ros1 = tmp_path / 'old.bag'
+    ros1.write_bytes(b'#ROSBAG V2.0\n' + b'\x00' * 64)
+    assert main(['compare', '@paper_HD', str(ros1)]) == 2
+    err = capsys.readouterr().err
+    assert 'is a ROS 1 bag, not a rosbag2 bag' in err and 'reindex' not in err

@@ -14,15 +14,36 @@ from .compare import COMPARED
 def plot_overlay(runs: Mapping[str, Mapping[str, np.ndarray]], path: str | Path, *,
                  title: str = '', reference: str | None = None,
                  signals: Sequence[str] = ('xj', 'dxj', 'p12', 'xs'),
-                 shade: Sequence[tuple[float, float]] = ()) -> None:
+                 shade: Sequence[tuple[float, float]] = (),
+                 windows: Mapping[str, tuple[float, float]] | None = None,
+                 inputs: bool = False) -> None:
     """Stacked time plots of several runs, in the manner of the paper's Figs. 19-23: one axis
-    per signal (XJ, DXJ, P12, XS against t); the reference drawn black and dashed."""
+    per signal (XJ, DXJ, P12, XS against t); the reference drawn black and dashed.
+
+    ``inputs`` adds the command Com on the XJ axis and a first axis with the load FR and the
+    supply PSR (what the runs were asked to do); ``windows`` (name -> (t0, t1)) are shaded in
+    turn and named in a legend, ``shade`` are plain grey spans."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(len(signals), 1, figsize=(8.0, 2.1 * len(signals)), sharex=True)
-    axes = np.atleast_1d(axes)
+    first = next(iter(runs.values()))
+    show_inputs = inputs and 'fr' in first and 'psr' in first
+    n = len(signals) + (1 if show_inputs else 0)
+    fig, axes = plt.subplots(n, 1, figsize=(8.0, 2.1 * n), sharex=True)
+    axes = list(np.atleast_1d(axes))
+    if show_inputs:
+        ax = axes.pop(0)
+        ax.plot(first['t'], np.asarray(first['fr']) * 1e-3, color='C3', lw=1.0, label='FR [kN]')
+        ax.set_ylabel('FR [kN]', color='C3')
+        ax2 = ax.twinx()
+        ax2.plot(first['t'], np.asarray(first['psr']) * 1e-6, color='C2', lw=1.0,
+                 label='PSR [MPa]')
+        ax2.set_ylabel('PSR [MPa]', color='C2')
+        ax.set_title(title or 'inputs')
+        ax.grid(True, lw=0.3)
+        title = ''
+        _shade(ax, shade, windows, legend=True)
     for ax, sig in zip(axes, signals):
         label, unit, scale = COMPARED.get(sig, (sig.upper(), 'SI', 1.0))
         for name, data in runs.items():
@@ -30,17 +51,31 @@ def plot_overlay(runs: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
                 continue
             style = dict(color='k', ls='--', lw=1.2) if name == reference else dict(lw=1.0)
             ax.plot(data['t'], np.asarray(data[sig]) * scale, label=name, **style)
-        for t0, t1 in shade:
-            ax.axvspan(t0, t1, color='0.9', zorder=0)
+        if show_inputs and sig == 'xj' and 'com' in first:
+            ax.plot(first['t'], np.asarray(first['com']) * scale, color='0.5', lw=0.8, ls=':',
+                    label='Com')
+        _shade(ax, shade, windows, legend=False)
         ax.set_ylabel(f'{label} [{unit}]')
         ax.grid(True, lw=0.3)
-    axes[0].legend(loc='best', fontsize=8, ncol=min(4, len(runs)))
+    lines = [h for h in axes[0].get_lines() if not h.get_label().startswith('_')]
+    axes[0].legend(handles=lines, loc='best', fontsize=8, ncol=min(4, len(runs) + 1))
     axes[-1].set_xlabel('t [s]')
     if title:
         axes[0].set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def _shade(ax, shade, windows, legend: bool) -> None:
+    for t0, t1 in shade:
+        ax.axvspan(t0, t1, color='0.9', zorder=0)
+    for i, (name, (t0, t1)) in enumerate((windows or {}).items()):
+        ax.axvspan(t0, t1, color=f'C{i % 10}', alpha=0.12 if legend else 0.06, zorder=0,
+                   label=name)
+    if legend and windows:
+        ax.legend(loc='upper left', fontsize=7, ncol=min(6, len(windows)), title='windows',
+                  title_fontsize=7)
 
 
 def plot_characteristic(curves: dict[str, dict[str, np.ndarray]], path, psr: float) -> None:

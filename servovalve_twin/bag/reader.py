@@ -109,6 +109,13 @@ def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
     counts: dict[str, int] = {}
     provenance: dict[str, str] = {}
     try:
+        with open(file, 'rb') as fh:
+            head = fh.read(8)
+        if head.startswith(b'#ROSBAG'):
+            raise BagError(f'{str(file)!r} is a ROS 1 bag, not a rosbag2 bag')
+        if head and not head.startswith(b'\x89MCAP'):
+            raise BagError(f'{str(file)!r} is not an MCAP file (a rosbag2 bag of the twin is '
+                           'MCAP; `servovalve-twin play` and `evaluate` also read sqlite3)')
         check_data_crc(file)
         with open(file, 'rb') as fh:
             reader = make_reader(fh, validate_crcs=True)
