@@ -181,13 +181,20 @@ def _run(args: argparse.Namespace) -> int:
     if args.out and args.out != '-' and not Path(args.out).resolve().parent.is_dir():
         raise TwinError(f'--out {args.out}: directory {str(Path(args.out).parent)!r} does not '
                         'exist')
+    from .progress import enabled, progress
+    bar = progress(total=int(round(scenario.duration * 1000)), desc='run', unit='ms') \
+        if enabled() and not args.progress else None
     result = run_twin(args.valve_model, scenario, _overrides(args),
+                      on_tick=(lambda k, twin: bar.update(twin.period_ns * 1e-6) if k else None)
+                      if bar is not None else None,
                       control_period=args.control_period, bag=bag, overwrite=args.overwrite,
                       keep_values=args.out is not None, clock_period=args.clock_period,
                       monitor=args.monitor,
                       algorithms=[(a, _algorithm_params(args)) for a in args.algorithm],
                       on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
                       if args.progress else None)
+    if bar is not None:
+        bar.close()
     if args.out:
         write_csv(args.out, result.signals)
     sim_s = result.simulated_s

@@ -15,6 +15,7 @@ from ..physics.characteristic import characteristic
 from ..physics.params import make_params
 from ..physics.simulate import RunResult
 from ..physics.valves import VALVE_MODEL_NAMES
+from ..progress import progress
 from ..runs import simulate
 from .compare import error_metrics
 from .plots import plot_characteristic, plot_overlay
@@ -36,7 +37,8 @@ def back_movement(r: RunResult) -> float:
 
 
 def paper_runs(overrides: Mapping[str, Any] | None = None) -> dict[str, RunResult]:
-    return {m: simulate(m, 'paper', overrides) for m in VALVE_MODEL_NAMES}
+    return {m: simulate(m, 'paper', overrides)
+            for m in progress(VALVE_MODEL_NAMES, desc='report: paper runs', unit='model')}
 
 
 def make_report(*, out_dir: Path, readme: Path | None = None,
@@ -115,11 +117,13 @@ def beyond_report(out_dir: Path) -> str:
     """Issue 6: SQ against C1, C2, C3 on three scenarios, errors against HD and step cost."""
     from ..config import load_scenario
     out_dir.mkdir(parents=True, exist_ok=True)
-    cost = {m: step_cost_us(m) for m in BEYOND_MODELS}
+    cost = {m: step_cost_us(m) for m in progress(BEYOND_MODELS, desc='report: step cost',
+                                                  unit='model')}
     lines = ['| scenario | model | XJ rms / max [mm] | DXJ rms / max [mm/s] | P12 rms / max [MPa] '
              '| window | XJ rms / max [mm] | DXJ rms / max [mm/s] | P12 rms / max [MPa] | '
              'step cost [us] |', '|---|---|---|---|---|---|---|---|---|---|']
-    for scenario, overrides, wins in BEYOND_SCENARIOS:
+    for scenario, overrides, wins in progress(BEYOND_SCENARIOS, desc='report: beyond the paper',
+                                              unit='scenario'):
         scn = load_scenario(scenario)
         label = scenario + (' ' + ', '.join(f'{k}={v:g}' for k, v in overrides.items())
                             if overrides else '')

@@ -15,9 +15,9 @@ from .valves import get_valve_model
 def characteristic(valve_model: str, params: EhaParams, psr: float, qj: Sequence[float],
                    n_points: int = 401) -> dict[str, np.ndarray]:
     """P12 against XS over [-XSM, XSM] for each QJ (rows: every XS for the first QJ, then the
-    next...). HD adds the port pressures P1, P2. A point without a steady state is NaN (blank
-    in the CSV and the plot); ``np.isnan(out['p12']).sum()`` counts them. The sweep warm-starts each point from the
-    previous one, as a slow quasi-static test-bench sweep would.
+    next...). HD adds the port pressures P1, P2. A point without a steady state is NaN (``nan``
+    in the CSV, a gap in the plot); ``np.isnan(out['p12']).sum()`` counts them. The sweep
+    warm-starts each point from the previous one, as a slow quasi-static test-bench sweep would.
 
     The compressible HD option describes dynamics, not a static curve: the characteristic is
     always the pseudo-static one.

@@ -7,7 +7,8 @@ and the README. Names are the canonical names of MODELS.md section 5.
 Derived parameters (``GM``, ``V0``, ``C4_alpha``) default to ``None`` and are computed from the
 others by :meth:`EhaParams.value`; giving a value overrides the derivation (a fault may scale
 ``GM``, for instance). ``XSS`` and ``GPQ`` are *not* derived: they hold the HD calibration
-(:func:`servovalve_twin.physics.valves.calibration.calibrate`) and changing the HD geometry does not silently
+(:func:`servovalve_twin.physics.valves.calibration.calibrate`) and changing the HD geometry does
+not silently
 recalibrate them.
 """
 

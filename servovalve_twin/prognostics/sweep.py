@@ -25,6 +25,7 @@ from ..errors import TwinError
 from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, make_params
 from ..physics.simulate import simulate
+from ..progress import progress
 from .monitor import ERROR, WARN, HealthConfig, monitor_run
 
 
@@ -177,14 +178,21 @@ def run_cases(cases: Sequence[Case], *, workers: int | None = None,
         except (OSError, TimeoutError) as exc:
             raise TwinError(f'cannot reach the Dask scheduler at {scheduler}: {exc}') from None
         try:
-            return client.gather(client.map(run_case, list(cases), pure=False))
+            futures = client.map(run_case, list(cases), pure=False)
+            from dask.distributed import as_completed
+            for _ in progress(as_completed(futures), total=len(futures), desc='sweep',
+                              unit='run'):
+                pass
+            return client.gather(futures)
         finally:
             client.close()
     workers = workers or os.cpu_count() or 1
     if workers == 1 or len(cases) == 1:
-        return [run_case(c) for c in cases]
+        return [run_case(c) for c in progress(cases, desc='sweep', unit='run')]
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(run_case, cases, chunksize=max(1, len(cases) // (4 * workers))))
+        return list(progress(pool.map(run_case, cases,
+                                      chunksize=max(1, len(cases) // (4 * workers))),
+                             total=len(cases), desc='sweep', unit='run'))
 
 
 def write_dataset(out: Path, results: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

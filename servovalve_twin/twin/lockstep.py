@@ -381,7 +381,8 @@ def provenance(valve_model: str, scenario: Scenario, params: EhaParams,
 
 def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
              overrides: Mapping[str, Any] | None = None, *, control_period: float = 1e-3,
-             bag: str | Path | None = None, handle_signals: bool = True, **kwargs) -> TwinResult:
+             bag: str | Path | None = None, handle_signals: bool = True,
+             on_tick: Callable[[int, 'Twin'], None] | None = None, **kwargs) -> TwinResult:
     """Build, run and close a twin; SIGINT/SIGTERM finish the bag and return early."""
     twin = Twin(valve_model, scenario, overrides, control_period=control_period, bag=bag,
                 **kwargs)
@@ -390,7 +391,7 @@ def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
         for sig in (signal.SIGINT, signal.SIGTERM):
             old[sig] = signal.signal(sig, twin.request_stop)
     try:
-        return twin.run()
+        return twin.run(on_tick)
     finally:
         twin.close()
         for sig, handler in old.items():
