@@ -298,3 +298,16 @@ def test_a_ros1_bag_is_named_as_such(tmp_path, capsys):
     assert main(['compare', '@paper_HD', str(ros1)]) == 2
     err = capsys.readouterr().err
     assert 'is a ROS 1 bag, not a rosbag2 bag' in err and 'reindex' not in err
+
+
+def test_a_standalone_plant_that_falls_behind_says_so(ros_context):
+    from servovalve_twin.nodes.plant import Plant
+    node = Plant(context=ros_context)
+    try:
+        node._count_overruns(1_000_000_000)
+        node._count_overruns(1_001_000_000)            # on time: nothing missed
+        assert getattr(node, 'overruns', 0) == 0
+        node._count_overruns(1_005_000_000)            # 4 ms later: 3 periods missed
+        assert node.overruns == 3
+    finally:
+        node.destroy_node()
