@@ -29,24 +29,20 @@ def runs():
     return {m: cached_run(m) for m in VALVE_MODEL_NAMES}
 
 
-@pytest.fixture
-def ros_context():
-    """A private, initialised rclpy context for one test (no global state, no signal hooks)."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.signals import SignalHandlerOptions
-    ctx = Context()
-    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
+# ros_context, replay and twin_bag come from the package's own pytest plugin
+# (servovalve_twin.testing.plugin, entry point pytest11), as in any user's test suite.
 
 
 def console_script(name: str) -> str:
-    """Path of an installed console script of this package (next to the interpreter)."""
+    """Path of an installed console script of this package: next to the interpreter (pip,
+    the venv), in colcon's ``install/servovalve_twin/lib/servovalve_twin/``, or on PATH."""
     import shutil
-    path = Path(sys.executable).parent / name
-    if path.exists():
-        return str(path)
+    import servovalve_twin
+    pkg = Path(servovalve_twin.__file__).resolve()
+    for path in (Path(sys.executable).parent / name,
+                 pkg.parents[3] / 'servovalve_twin' / name if len(pkg.parents) > 3 else None):
+        if path is not None and path.exists():
+            return str(path)
     found = shutil.which(name)
     if not found:
         pytest.fail(f'console script {name!r} is not installed: run scripts/setup')
