@@ -1,5 +1,6 @@
-"""``twin``: the four nodes, a clock driver and a bag recorder in one ``EventsExecutor`` on
-simulated time, in deterministic lockstep.
+"""``twin``: the four nodes of the actuator (and the monitor and users' algorithm nodes when
+asked), a clock driver and a bag recorder in one ``EventsExecutor`` on simulated time, in
+deterministic lockstep.
 
 Per control period k (t = k*Tc, an integer count of nanoseconds; ROS-LOCKSTEP.md):
 
@@ -8,7 +9,8 @@ Per control period k (t = k*Tc, an integer count of nanoseconds; ROS-LOCKSTEP.md
 3. the command generator and the load and supply node publish Com, FR, PSR at t;
 4. the executor spins until the plant reports tick k done: the ECU computes Cor once it holds
    that tick's Com and XJ; the plant, once it holds Cor, FR and PSR, publishes P12, QJ (P1, P2)
-   and the joint state at t and integrates [t, t + Tc) in DT sub-steps;
+   and the joint state at t and integrates [t, t + Tc) in DT sub-steps; the monitor and the
+   algorithm nodes step once they hold that tick's value of each of their inputs;
 5. only then does the clock advance. The last tick (t = duration) evaluates without
    integrating, so the run's last 1 ms row is complete.
 
@@ -44,10 +46,10 @@ from ..bag.table import signal_table
 from ..bag.writer import BagWriter
 from ..config import load_scenario
 from ..errors import TwinError
+from ..nodes.algorithm import AlgorithmNode, algorithm_topics, verdict
 from ..nodes.clock import clock_msg
 from ..nodes.common import TOPICS
 from ..nodes.ecu import Ecu
-from ..nodes.algorithm import AlgorithmNode, algorithm_topics, verdict
 from ..nodes.monitor import MONITOR_TOPICS, Monitor
 from ..nodes.plant import Plant
 from ..nodes.sources import CommandGenerator, LoadSupply
