@@ -30,6 +30,12 @@ def _add_param_options(p: argparse.ArgumentParser) -> None:
                         '`servovalve-twin params` lists them')
 
 
+def _add_foxglove_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument('--foxglove', type=int, nargs='?', const=8765, default=None, metavar='PORT',
+                   help='serve the topics live to the Foxglove app (Foxglove WebSocket on '
+                        'ws://127.0.0.1:PORT, default 8765; layout: config/foxglove_layout.json)')
+
+
 def _add_algorithm_options(p: argparse.ArgumentParser, many: bool) -> None:
     if many:
         p.add_argument('--algorithm', action='append', default=[], metavar='MOD:CLASS',
@@ -191,6 +197,7 @@ def _run(args: argparse.Namespace) -> int:
                       keep_values=args.out is not None, clock_period=args.clock_period,
                       monitor=args.monitor,
                       algorithms=[(a, _algorithm_params(args)) for a in args.algorithm],
+                      foxglove=args.foxglove,
                       on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
                       if args.progress else None)
     if bar is not None:
@@ -308,7 +315,8 @@ def cmd_play(args: argparse.Namespace) -> int:
     context = Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        result = play(args.bag, opts, context=context, stop=lambda: bool(stop))
+        result = play(args.bag, opts, context=context, stop=lambda: bool(stop),
+                      foxglove=args.foxglove)
     finally:
         rclpy.try_shutdown(context=context)
         for sig, handler in old.items():
@@ -476,6 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--discoverable', action='store_true',
                    help='keep DDS discovery on (to watch the topics from other processes); by '
                         'default the run is confined to its process')
+    _add_foxglove_option(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser('compare', help='errors of a run against a reference (bags or CSVs)')
@@ -547,6 +556,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help='start paused (resume with the ~/resume service)')
     p.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO',
                    help='publish topic FROM as TO')
+    _add_foxglove_option(p)
     p.set_defaults(func=cmd_play)
 
     p = sub.add_parser('evaluate', help='run your Algorithm on a recorded bag, ROS-free (the '

@@ -27,6 +27,9 @@ class Recorder:
         self.flush_ns = flush_ns
         self._flushed_ns = 0
         self.on_flush: Callable[[float], None] | None = None   # called with the flushed time
+        #: live consumers of every message as (topic, CDR bytes, simulated time) -- the
+        #: Foxglove view; empty by default, so recording pays nothing for them
+        self.sinks: list[Callable[[str, bytes, int], None]] = []
         self.types = dict(types)
         self.encoders = {topic: ENCODERS[tn] for topic, tn in self.types.items()}
         float_topics = [t for t, tn in self.types.items() if tn == 'std_msgs/msg/Float64']
@@ -41,6 +44,11 @@ class Recorder:
 
     def record(self, topic: str, msg: Any) -> None:
         """The nodes' tap: ``topic`` as the node names it (relative: 'xj', or '/clock')."""
+        if self.sinks:
+            name = topic if topic[0] == '/' else '/' + topic
+            data = self.encoders[name](msg)
+            for sink in self.sinks:
+                sink(name, data, self.now_ns)
         pending = self._pending.get(topic)
         if pending is not None:
             pending[0].append(self.now_ns)

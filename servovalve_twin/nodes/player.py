@@ -137,6 +137,8 @@ class Player(Node):
                           if options.clock > 0 else None)
         self.paused = options.start_paused
         self.published = 0
+        #: live consumers of every played message (topic, CDR bytes, log time): Foxglove
+        self.sinks: list = []
         self._play_next = 0
         for srv, fn in (('pause', self._srv_pause), ('resume', self._srv_resume),
                         ('toggle_paused', self._srv_toggle), ('play_next', self._srv_next),
@@ -208,6 +210,8 @@ class Player(Node):
             return False
         topic, t, data = self._pending
         self.pubs[topic].publish(data)
+        for sink in self.sinks:
+            sink(topic, data, t)
         self.published += 1
         self.bag_now_ns = t
         self._pending = next(self._stream, None)
@@ -245,15 +249,21 @@ class Player(Node):
 
 
 def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None = None,
-         stop=None, on_ready=None) -> dict:
+         stop=None, on_ready=None, foxglove: int | None = None) -> dict:
     """Play a bag to the end (or until ``stop()`` is true); returns counts and wall time.
 
-    ``progress``: a single updating line on stderr (default: when stderr is a terminal)."""
+    ``progress``: a single updating line on stderr (default: when stderr is a terminal);
+    ``foxglove``: also serve the played messages to the Foxglove app on this localhost port."""
     from rclpy.executors import SingleThreadedExecutor
     bag = open_any_bag(bag_path)
     player = Player(bag, options, context=context)
     for w in player.warnings:
         print(f'play: warning: {w}', file=sys.stderr)
+    live = None
+    if foxglove is not None:
+        from .live import FoxgloveLive
+        live = FoxgloveLive({t: bag.topics[t].type for t in player.pubs}, port=foxglove)
+        player.sinks.append(live.log)
     ex = SingleThreadedExecutor(context=context)
     ex.add_node(player)
     show = sys.stderr.isatty() if progress is None else progress
@@ -285,6 +295,8 @@ def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None 
         if show:
             print(file=sys.stderr)
         ex.shutdown()
+        if live is not None:
+            live.close()
         published = player.published
         player.destroy_node()
     return dict(published=published, wall_s=time.monotonic() - wall0,

@@ -16,9 +16,9 @@ from .lockstep import run_twin
 
 USAGE = ('usage: twin --ros-args -p valve_model:=NAME -p scenario:=NAME|FILE '
          '-p control_period:=S [-p bag:=DIR | -p record:=false] [-p overwrite:=true] '
-         '[-p monitor:=C2] [-p PARAM:=VALUE ...]')
+         '[-p monitor:=C2] [-p foxglove:=8765] [-p PARAM:=VALUE ...]')
 OPTIONS = ('valve_model', 'scenario', 'control_period', 'bag', 'record', 'overwrite',
-           'monitor')
+           'monitor', 'foxglove')
 
 
 def main(args: Sequence[str] | None = None) -> int:
@@ -40,11 +40,13 @@ def main(args: Sequence[str] | None = None) -> int:
         record = bool(values.pop('record', True))
         overwrite = bool(values.pop('overwrite', False))
         monitor = values.pop('monitor', '') or None
+        foxglove = values.pop('foxglove', None)
         if record and not bag:
             bag = default_bag_dir(load_scenario(scenario).name, valve_model)
         result = run_twin(valve_model, scenario, values, control_period=period,
                           bag=bag if record else None, context=context, keep_values=False,
-                          monitor=monitor, overwrite=overwrite)
+                          monitor=monitor, overwrite=overwrite,
+                          foxglove=None if foxglove is None else int(foxglove))
     except TwinError as exc:
         print(f'twin: error: {exc}', file=sys.stderr)
         return 2

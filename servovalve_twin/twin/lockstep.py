@@ -113,6 +113,8 @@ class Twin:
         message is tied to its tick -- so it is decimated: at 1 ms each ``/clock`` message
         costs a delivery to every node's time source (bench/README.md)
     :param executor: 'events' (rclpy's EventsExecutor) or 'single' (SingleThreadedExecutor)
+    :param foxglove: serve every message live to the Foxglove app on this localhost port (0:
+        any free one; :mod:`..nodes.live`)
     """
 
     def __init__(self, valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
@@ -123,7 +125,8 @@ class Twin:
                  clock_period: float = 1e-2, executor: str = 'events',
                  base_params: EhaParams | None = None,
                  on_flush: Callable[[float], None] | None = None,
-                 monitor: str | None = None, algorithms: Sequence[Any] = ()):
+                 monitor: str | None = None, algorithms: Sequence[Any] = (),
+                 foxglove: int | None = None):
         get_valve_model(valve_model)
         self.scenario = load_scenario(scenario)
         self.params = effective_params(self.scenario, overrides, base_params)
@@ -194,6 +197,11 @@ class Twin:
                 self.writer = BagWriter(bag, overwrite=overwrite, flush_every_ns=None)
             self.recorder = Recorder(self.writer, types, keep_values=keep_values)
             self.recorder.on_flush = on_flush
+            self.live = None
+            if foxglove is not None:        # serve every recorded message to the Foxglove app
+                from ..nodes.live import FoxgloveLive
+                self.live = FoxgloveLive(types, port=foxglove)
+                self.recorder.sinks.append(self.live.log)
             #: the actuator's nodes: a scheduled fault goes to every one that reads its parameter
             self.actuator = [self.ecu, self.plant]
             self.nodes = [self.command_generator, self.load_supply, self.ecu, self.plant,
@@ -330,6 +338,9 @@ class Twin:
             if getattr(self, 'recorder', None) is not None:
                 self.recorder.flush()
             self.writer.close()
+        if getattr(self, 'live', None) is not None:
+            self.live.close()
+            self.live = None
         ex = getattr(self, 'executor', None)
         if ex is not None:
             ex.shutdown()

@@ -1,0 +1,117 @@
+"""The live view in the Foxglove app: a Foxglove WebSocket client connects to the twin (and to
+a bag being played), subscribes, and receives the exact CDR bytes that the bag records."""
+
+import asyncio
+import json
+import re
+import threading
+
+import pytest
+
+from servovalve_twin.bag.reader import read_bag
+from servovalve_twin.twin import Twin
+from conftest import ROOT
+
+SHORT = {'duration': 0.05, 'com': [[0.0, 0.02]]}
+
+
+class Client(threading.Thread):
+    """A Foxglove WebSocket client in a thread: subscribes to ``topic`` and keeps the payloads
+    of the first ``n`` messages."""
+
+    def __init__(self, port, topic, n):
+        super().__init__(daemon=True)
+        self.port, self.topic, self.n = port, topic, n
+        self.payloads, self.stamps, self.schema = [], [], None
+        self.error = None
+
+    def run(self):
+        try:
+            asyncio.run(self._main())
+        except Exception as exc:  # noqa: BLE001 -- reported by the test
+            self.error = exc
+
+    async def _main(self):
+        import websockets
+        async with websockets.connect(f'ws://127.0.0.1:{self.port}',
+                                      subprotocols=['foxglove.sdk.v1']) as ws:
+            while len(self.payloads) < self.n:
+                m = await asyncio.wait_for(ws.recv(), 120)
+                if isinstance(m, str):
+                    msg = json.loads(m)
+                    for ch in msg.get('channels', []) if msg.get('op') == 'advertise' else []:
+                        if ch['topic'] == self.topic:
+                            self.schema = ch
+                            await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
+                                {'id': 7, 'channelId': ch['id']}]}))
+                elif m[0] == 1:           # message data: op, subscription id, time, payload
+                    self.stamps.append(int.from_bytes(m[5:13], 'little'))
+                    self.payloads.append(bytes(m[13:]))
+
+
+def test_a_foxglove_client_receives_the_twins_topics(ros_context, tmp_path):
+    with Twin('C2', SHORT, context=ros_context, bag=tmp_path / 'b', foxglove=0) as twin:
+        client = Client(twin.live.port, '/xj', 51)
+        client.start()
+        assert twin.live.subscribed.wait(120), client.error
+        twin.run()
+    client.join(120)
+    assert client.error is None and len(client.payloads) == 51
+    assert client.schema['encoding'] == 'cdr' and client.schema['schemaName'] == \
+        'std_msgs/msg/Float64' and 'float64 data' in client.schema['schema']
+    from mcap.reader import make_reader
+    with open(tmp_path / 'b' / 'b_0.mcap', 'rb') as fh:
+        recorded = [(m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages(
+            topics=['/xj'], log_time_order=True)]
+    assert list(zip(client.stamps, client.payloads)) == recorded       # exact bytes, sim time
+
+
+def test_play_serves_a_bag_to_foxglove(ros_context):
+    from servovalve_twin.nodes.player import PlayOptions, play
+    ref = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
+    holder = {}
+
+    def ready(player):           # start paused; resume once the client has subscribed
+        holder['player'] = player
+    opts = PlayOptions(rate=50.0, topics=('/p12',), start_paused=True)
+    done = {}
+
+    def run():
+        done['r'] = play(ref, opts, context=ros_context, foxglove=0, on_ready=ready,
+                         progress=False)
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    for _ in range(1200):
+        if 'player' in holder and holder['player'].sinks:
+            break
+        threading.Event().wait(0.1)
+    player = holder['player']
+    live = player.sinks[0].__self__
+    client = Client(live.port, '/p12', 1001)
+    client.start()
+    assert live.subscribed.wait(120), client.error
+    player._set_paused(False)
+    t.join(300)
+    client.join(120)
+    assert client.error is None and len(client.payloads) == 1001
+    run_ = read_bag(ref)
+    import struct
+    values = [struct.unpack('<d', p[4:])[0] for p in client.payloads]
+    assert values == run_.series['/p12'][1].tolist()
+
+
+def test_the_shipped_layout_names_the_twins_topics():
+    layout = json.loads((ROOT / 'config' / 'foxglove_layout.json').read_text())
+    from servovalve_twin.nodes.common import TOPICS
+    from servovalve_twin.nodes.monitor import MONITOR_TOPICS
+    known = {f'/{t}' for t in list(TOPICS) + list(MONITOR_TOPICS)}
+    paths = [p['value'] for c in layout['configById'].values() for p in c.get('paths', [])]
+    topics = {re.match(r'(/[\w/]+)\.', p).group(1) for p in paths}
+    assert topics and topics <= known, topics - known
+    assert set(_panels(layout['layout'])) == set(layout['configById'])
+
+
+def _panels(node):
+    if isinstance(node, str):
+        return [node]
+    return _panels(node['first']) + _panels(node['second'])
