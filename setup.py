@@ -23,7 +23,7 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'zstandard', 'lz4',
-                      'matplotlib', 'tqdm'],
+                      'matplotlib', 'tqdm', 'pyarrow'],
     extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]']},
     python_requires='>=3.10',
     zip_safe=False,

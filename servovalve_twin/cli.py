@@ -86,10 +86,10 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 # -- commands -------------------------------------------------------------------------------
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .runs import simulate, write_csv
+    from .runs import simulate, write_table
     result = simulate(args.valve_model, args.scenario, _overrides(args),
                       ecu_period=args.ecu_period)
-    write_csv(args.out, result.signals)
+    write_table(args.out, result.signals)
     info = ', '.join(f'{k}={v}' for k, v in result.info.items() if k != 'wall_s')
     print(f'{result.valve_model} on {result.scenario.name}: {len(result["t"])} rows -> '
           f'{"stdout" if args.out == "-" else args.out} ({result.info["wall_s"] * 1e3:.1f} ms; '
@@ -180,7 +180,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from .config import default_bag_dir, load_scenario
-    from .runs import write_csv
+    from .runs import write_table
     from .twin import run_twin
     scenario = load_scenario(args.scenario)
     bag = None if args.no_bag else (args.bag or default_bag_dir(scenario.name, args.valve_model))
@@ -203,7 +203,7 @@ def _run(args: argparse.Namespace) -> int:
     if bar is not None:
         bar.close()
     if args.out:
-        write_csv(args.out, result.signals)
+        write_table(args.out, result.signals)
     sim_s = result.simulated_s
     print(f'{result.valve_model} on {scenario.name}: {sim_s:.3f} s simulated in '
           f'{result.wall_s:.3f} s (real-time factor {sim_s / max(result.wall_s, 1e-9):.1f})'
@@ -403,7 +403,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     summary = write_dataset(Path(args.out), results)
     print(f'{len(cases)} runs in {wall:.1f} s ({len(cases) / wall:.1f} runs/s) -> {args.out}/'
-          '{dataset.csv, traces.npz, summary.json, signature.png}')
+          '{dataset.csv, dataset.parquet, traces.npz, summary.json, signature.png}')
     print(f'false alarms on nominal runs: {summary["false_alarms"]}/{summary["nominal_runs"]}')
     for fault, rows in summary['faults'].items():
         for r in rows:
@@ -433,7 +433,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='sample the ECU with this period (a multiple of DT); default continuous')
     p.add_argument('--out', required=True, metavar='FILE.csv',
                    help="the 1 ms rows t,com,fr,psr,cor,xs,xj,dxj,p12,qj (HD adds p1,p2), SI; "
-                        "'-' writes to standard output")
+                        "CSV, or Parquet for a .parquet name; '-' writes CSV to standard "
+                        'output')
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser('characteristic', help="the paper's Fig. 3: P12 against XS per QJ")
@@ -531,7 +532,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--scheduler', metavar='ADDRESS', help='run on this Dask scheduler')
     _add_param_options(p)
     p.add_argument('--out', required=True, metavar='DIR',
-                   help='dataset.csv, traces.npz, summary.json, signature.png go here')
+                   help='dataset.csv and .parquet, traces.npz, summary.json, signature.png')
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser('play', help='put a rosbag2 bag (MCAP or sqlite3, any version) back on '

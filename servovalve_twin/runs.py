@@ -76,4 +76,32 @@ def read_csv(path: str | Path, require: tuple[str, ...] = ()) -> dict[str, np.nd
     return {name: data[:, i] for i, name in enumerate(header)}
 
 
-__all__ = ['simulate', 'write_csv', 'read_csv']
+def write_table(path: str | Path, signals: Mapping[str, np.ndarray]) -> None:
+    """A run's columns to ``path``: Parquet when it ends in ``.parquet`` (pyarrow; 100 000
+    rows in a fraction of the CSV writer's time, exact doubles), else CSV (``-``: stdout)."""
+    if str(path).endswith('.parquet'):
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+        pq.write_table(pa.table({k: np.asarray(v, dtype=float) for k, v in signals.items()}),
+                       str(path))
+    else:
+        write_csv(path, signals)
+
+
+def read_table(path: str | Path, require: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The columns of a run written by :func:`write_table` (Parquet or CSV)."""
+    if str(path).endswith('.parquet'):
+        import pyarrow.parquet as pq
+        try:
+            table = pq.read_table(str(path))
+        except OSError as exc:
+            raise TwinError(f'cannot read Parquet {str(path)!r}: {exc}') from None
+        cols = {name: table.column(name).to_numpy() for name in table.column_names}
+        if any(c not in cols for c in require):
+            raise TwinError(f'{str(path)!r} is not a run table: expected columns '
+                            f'{",".join(require)}')
+        return cols
+    return read_csv(path, require)
+
+
+__all__ = ['simulate', 'write_csv', 'read_csv', 'write_table', 'read_table']

@@ -311,3 +311,20 @@ def test_a_standalone_plant_that_falls_behind_says_so(ros_context):
         assert node.overruns == 3
     finally:
         node.destroy_node()
+
+
+def test_parquet_outputs(tmp_path, monkeypatch):
+    import pyarrow.parquet as pq
+    from servovalve_twin.runs import read_csv, read_table
+    monkeypatch.chdir(tmp_path)
+    assert main(['simulate', '--valve-model', 'HD', '--out', 'r.parquet']) == 0
+    assert main(['simulate', '--valve-model', 'HD', '--out', 'r.csv']) == 0
+    a, b = read_table('r.parquet'), read_csv('r.csv')
+    assert list(a) == list(b)
+    for k in b:
+        np.testing.assert_array_equal(a[k], b[k])            # exact doubles, both ways
+    assert main(['compare', 'r.csv', 'r.parquet', '--tolerance', 'xj=0']) == 0
+    assert main(['sweep', '--fault', 'null_bias:-0.005', '--nominal', '1', '--workers', '1',
+                 '--out', 's']) == 0
+    table = pq.read_table(tmp_path / 's' / 'dataset.parquet').to_pydict()
+    assert table['fault'] == ['none', 'null_bias'] and table['alarm'] == [0, 1]

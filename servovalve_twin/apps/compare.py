@@ -107,7 +107,7 @@ def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:
     control period -- from their provenance records (bags only; nothing for CSVs): a comparison
     of two runs of different actuators or inputs is rarely what was meant."""
     from ..bag.reader import read_bag
-    if Path(ref).suffix == '.csv' or Path(run).suffix == '.csv':
+    if Path(ref).suffix in ('.csv', '.parquet') or Path(run).suffix in ('.csv', '.parquet'):
         return []
     a, b = read_bag(ref), read_bag(run)
     if not a.provenance or not b.provenance:
@@ -135,10 +135,10 @@ def load_run(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, tuple[f
     """A run's 1 ms signals from a bag (directory or .mcap) or a ``simulate`` CSV, and its
     windows: the scenario's phases (split at every breakpoint) and named windows."""
     from ..bag.reader import read_bag
-    from ..runs import read_csv
+    from ..runs import read_table
     p = Path(path)
-    if p.suffix == '.csv':
-        signals = read_csv(p, require=('t', 'xj'))
+    if p.suffix in ('.csv', '.parquet'):
+        signals = read_table(p, require=('t', 'xj'))
         return signals, _phases_from_inputs(signals)
     run = read_bag(p)
     windows: dict[str, tuple[float, float]] = {}

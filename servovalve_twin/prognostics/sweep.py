@@ -196,7 +196,7 @@ def run_cases(cases: Sequence[Case], *, workers: int | None = None,
 
 
 def write_dataset(out: Path, results: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """``dataset.csv`` (one row per run), ``traces.npz`` (per-run arrays, keys
+    """``dataset.csv`` and ``dataset.parquet`` (one row per run), ``traces.npz`` (per-run arrays, keys
     ``run<id>_<name>``), ``summary.json`` (detection statistics per fault and severity) and
     ``signature.png`` (peak indicators against severity, per fault)."""
     out.mkdir(parents=True, exist_ok=True)
@@ -209,6 +209,11 @@ def write_dataset(out: Path, results: Sequence[Mapping[str, Any]]) -> dict[str, 
         w.writeheader()
         for r in rows:
             w.writerow(r)
+    # the same table as Parquet (typed columns, quick to load into pandas or polars)
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    pq.write_table(pa.table({c: [r.get(c) for r in rows] for c in cols}),
+                   str(out / 'dataset.parquet'))
     arrays = {f'run{r["row"]["run_id"]}_{k}': v for r in results for k, v in r['traces'].items()}
     np.savez_compressed(out / 'traces.npz', **arrays)
     summary = summarize(rows)
