@@ -24,7 +24,9 @@ setup(
     ],
     install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'zstandard', 'lz4',
                       'matplotlib', 'tqdm', 'pyarrow'],
-    extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]']},
+    # 'test': what the suite needs beyond the package (colcon test runs pytest when it is here)
+    extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]'],
+                    'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets']},
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='servovalve_twin maintainers',

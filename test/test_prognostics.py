@@ -203,6 +203,7 @@ def test_sweep_on_a_dask_cluster(tmp_path):
 
 
 def test_unreachable_dask_scheduler_is_a_clear_error():
+    pytest.importorskip('distributed')                # optional, like its sibling above
     with pytest.raises(TwinError, match='cannot reach the Dask scheduler'):
         run_cases(make_cases(nominal_runs=1), scheduler='tcp://127.0.0.1:9')
 
