@@ -328,3 +328,61 @@ def test_parquet_outputs(tmp_path, monkeypatch):
                  '--out', 's']) == 0
     table = pq.read_table(tmp_path / 's' / 'dataset.parquet').to_pydict()
     assert table['fault'] == ['none', 'null_bias'] and table['alarm'] == [0, 1]
+
+
+def test_ctrl_c_while_a_console_script_imports_is_one_line(monkeypatch, capsys):
+    """The executables import rclpy and numba before anything can handle a signal: the entry
+    points catch Ctrl-C during that import (exit 130, one line, no traceback)."""
+    import importlib
+    from servovalve_twin import entry
+
+    def interrupted(name):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(importlib, 'import_module', interrupted)
+    for script in ('cli', 'plant', 'twin', 'player', 'algorithm'):
+        assert getattr(entry, script)() == 130
+        assert capsys.readouterr().err == 'interrupted while starting\n'
+
+
+def test_characteristic_leaves_points_without_steady_state_blank(tmp_path, capsys):
+    """At XS = 0 with a 0.2 nm clearance HD has no steady state under a forced flow: the point
+    is left blank (NaN) and counted; the rest of the curve is drawn."""
+    from servovalve_twin.runs import read_csv
+    assert main(['characteristic', '--valve-model', 'HD', '--param', 'c=2e-10', '--points',
+                 '41', '--out', str(tmp_path / 'c.csv'), '--plot', str(tmp_path / 'c.png')]) == 0
+    assert '1 of 164 points have no steady state' in capsys.readouterr().out
+    curve = read_csv(tmp_path / 'c.csv')
+    assert np.isnan(curve['p12']).sum() == 1 and np.isfinite(curve['p12']).sum() == 163
+    assert (tmp_path / 'c.png').stat().st_size > 1000
+
+
+def test_run_with_a_monitor_prints_its_verdict(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(['run', '--valve-model', 'HD', '--monitor', 'C2', '--no-bag']) == 0
+    out = capsys.readouterr().out
+    assert 'EHA monitor: no WARN, no ERROR; peak health_xj 0.00382' in out
+    _write(tmp_path, 'leak.yaml', 'faults: [{at: 0.1, fault: leakage_growth, severity: 10.0}]\n'
+           'com: [[0.0, 0.02], [0.3, 0.03], [0.75, 0.02]]\nfr: [[0.0, 0.0], [0.2, 10400.0]]\n')
+    assert main(['run', '--valve-model', 'HD', '--monitor', 'C2', '--no-bag', '--scenario',
+                 'leak.yaml']) == 0
+    assert 'EHA monitor: first WARN at 0.' in capsys.readouterr().out
+
+
+def test_the_launch_file_ends_with_an_essential_node_and_lists_the_registry():
+    """launch is not on PyPI: the launch description is checked as source -- the ECU and the
+    plant end the launch when they exit, the model choices come from the registry, and every
+    executable it starts is a console script of the package."""
+    import ast
+    tree = ast.parse((ROOT / 'launch' / 'twin.launch.py').read_text())
+    nodes = [c for c in ast.walk(tree) if isinstance(c, ast.Call)
+             and getattr(c.func, 'id', None) == 'Node']
+    kw = [{k.arg: k.value for k in c.keywords} for c in nodes]
+    execs = {ast.literal_eval(k['executable']): k for k in kw}
+    assert set(execs) == {'clock', 'command_generator', 'load_supply', 'ecu', 'plant',
+                          'monitor'}
+    for essential in ('ecu', 'plant'):
+        on_exit = execs[essential].get('on_exit')
+        assert on_exit is not None and on_exit.func.id == 'Shutdown', essential
+    setup = (ROOT / 'setup.py').read_text()
+    assert all(f"'{e} = servovalve_twin.entry:{e}'" in setup for e in execs)
+    assert 'VALVE_MODEL_NAMES' in ast.unparse(tree)

@@ -402,11 +402,10 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
             executor.spin_once(timeout_sec=0.1)
     except ExternalShutdownException:
         pass
-    except (TwinError, ParameterError) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        return 2
-    except rclpy.exceptions.ParameterException as exc:      # type/range at declare time
-        print(f'error: {exc}', file=sys.stderr)
+    except (TwinError, ParameterError, rclpy.exceptions.ParameterException) as exc:
+        # (the last: type or range refused at declare time) -- one line, of bounded length
+        text = ' '.join(str(exc).split())
+        print(f'error: {text[:600]}' + (' ...' if len(text) > 600 else ''), file=sys.stderr)
         return 2
     finally:
         if executor is not None:
