@@ -386,3 +386,34 @@ def test_the_launch_file_ends_with_an_essential_node_and_lists_the_registry():
     setup = (ROOT / 'setup.py').read_text()
     assert all(f"'{e} = servovalve_twin.entry:{e}'" in setup for e in execs)
     assert 'VALVE_MODEL_NAMES' in ast.unparse(tree)
+
+
+def test_progress_shows_on_a_terminal_only():
+    import os
+    import pty
+    import subprocess
+    import sys
+    code = ('import time\nfrom servovalve_twin.progress import progress\n'
+            'for _ in progress(range(3), desc="sweep", unit="run"): time.sleep(0.01)\n')
+    piped = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                           timeout=120)
+    assert piped.returncode == 0 and piped.stderr == ''          # quiet when not a terminal
+    import fcntl
+    import struct
+    import termios
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack('HHHH', 24, 100, 0, 0))   # 100 columns
+    proc = subprocess.Popen([sys.executable, '-c', code], stderr=slave, stdout=subprocess.DEVNULL)
+    os.close(slave)
+    out = b''
+    while True:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        out += chunk
+    assert proc.wait(timeout=120) == 0
+    os.close(master)
+    assert b'sweep' in out and b'run' in out
