@@ -196,8 +196,8 @@ def run_cases(cases: Sequence[Case], *, workers: int | None = None,
 
 
 def write_dataset(out: Path, results: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """``dataset.csv`` and ``dataset.parquet`` (one row per run), ``traces.npz`` (per-run arrays, keys
-    ``run<id>_<name>``), ``summary.json`` (detection statistics per fault and severity) and
+    """``dataset.csv`` and ``dataset.parquet`` (one row per run), ``traces.npz`` (per-run arrays,
+    keys ``run<id>_<name>``), ``summary.json`` (detection statistics per fault and severity) and
     ``signature.png`` (peak indicators against severity, per fault)."""
     out.mkdir(parents=True, exist_ok=True)
     rows = [r['row'] for r in results]

@@ -32,7 +32,8 @@ def test_healthy_actuator_raises_no_alarm(ros_context, replay, twin_bag):
 def test_leak_is_detected_once_the_load_is_held(ros_context, replay, twin_bag):
     out = replay(detector(ros_context), twin_bag(faults=LEAK))
     first = next(t for t, level in levels(out) if level == ERROR) * 1e-9
-    print(f'leak x5 from 0.1 s: ERROR at {first:.3f} s, index {out.data("/algorithm/leak_index")[-1]:.3f}')
+    index = out.data('/algorithm/leak_index')
+    print(f'leak x5 from 0.1 s: ERROR at {first:.3f} s, final index {index[-1]:.3f}')
     # the 10.4 kN load is applied at 0.2 s; the actuator first holds it still at 0.30 s and
     # then from 0.75 s
     assert 0.2 < first < 0.8
