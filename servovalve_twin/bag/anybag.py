@@ -193,7 +193,12 @@ def _read_metadata(d: Path) -> dict[str, Any] | None:
 
 
 def _file_summary(f: Path, storage: str) -> tuple[dict[str, TopicInfo], tuple[int, int, int]]:
-    """Topics of one storage file with their message counts, and (first, last, count)."""
+    """Topics of one storage file with their message counts, and (first, last, count): from
+    an MCAP file's summary statistics when it has them, else by reading its messages once."""
+    if storage == 'mcap':
+        fast = _mcap_statistics(f)
+        if fast is not None:
+            return fast
     topics: dict[str, TopicInfo] = {}
     t0 = t1 = None
     n = 0
@@ -203,6 +208,32 @@ def _file_summary(f: Path, storage: str) -> tuple[dict[str, TopicInfo], tuple[in
         t1 = t if t1 is None else max(t1, t)
         n += 1
     return topics, (t0 or 0, t1 or 0, n)
+
+
+def _mcap_statistics(f: Path):
+    """The MCAP summary's channels and statistics, CRCs checked; None without a summary."""
+    from mcap.reader import make_reader
+    try:
+        check_data_crc(f)
+        with open(f, 'rb') as fh:
+            summary = make_reader(fh, validate_crcs=True).get_summary()
+    except OSError as exc:
+        raise BagError(f'cannot read {str(f)!r}: {exc.strerror}') from None
+    except _mcap_errors():
+        return None                          # no usable summary: read the messages instead
+    if summary is None or summary.statistics is None:
+        return None
+    st = summary.statistics
+    topics = {}
+    for cid, ch in summary.channels.items():
+        schema = summary.schemas.get(ch.schema_id)
+        info = topics.setdefault(ch.topic, TopicInfo(
+            ch.topic, schema.name if schema else '',
+            normalise_qos(ch.metadata.get('offered_qos_profiles', '')),
+            serialization_format=ch.message_encoding))
+        info.count += st.channel_message_counts.get(cid, 0)
+    n = st.message_count
+    return topics, (st.message_start_time if n else 0, st.message_end_time if n else 0, n)
 
 
 def _file_messages(f: Path, storage: str, keep, start_ns, end_ns,
