@@ -290,7 +290,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .apps.compare import format_table
     with _discovery_off():
         _, result, metrics = replay(args.bag, valve_model=args.valve_model, out=args.out,
-                                    overrides=_overrides(args))
+                                    overrides=_overrides(args), overwrite=args.overwrite)
     print(f'replayed {args.bag} with {result.valve_model} into {result.bag}; new run against '
           'the bag:')
     print(format_table(metrics))
@@ -502,7 +502,10 @@ def build_parser() -> argparse.ArgumentParser:
                                       'compare with the bag')
     p.add_argument('bag', metavar='BAG', help='the recorded bag (or @paper_HD)')
     p.add_argument('--valve-model', metavar='NAME', help="default: the bag's")
-    p.add_argument('--out', metavar='DIR', help='new bag (default BAG_replay_<model>)')
+    p.add_argument('--out', metavar='DIR',
+                   help='new bag (default bags/<BAG>_replay_<model>_<UTC time>)')
+    p.add_argument('--overwrite', action='store_true',
+                   help="replace the bag in an existing --out directory (only the bag's files)")
     _add_param_options(p)
     p.set_defaults(func=cmd_replay)
 

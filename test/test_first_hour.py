@@ -417,3 +417,14 @@ def test_progress_shows_on_a_terminal_only():
     assert proc.wait(timeout=120) == 0
     os.close(master)
     assert b'sweep' in out and b'run' in out
+
+
+def test_replay_into_an_existing_directory_needs_overwrite(tmp_path, capsys):
+    out = tmp_path / 'r'
+    assert main(['replay', '@paper_HD', '--valve-model', 'C2', '--out', str(out)]) == 0
+    assert main(['replay', '@paper_HD', '--valve-model', 'C2', '--out', str(out)]) == 2
+    assert '--overwrite' in capsys.readouterr().err
+    (out / 'mine.txt').write_text('keep')
+    assert main(['replay', '@paper_HD', '--valve-model', 'C2', '--out', str(out),
+                 '--overwrite']) == 0
+    assert (out / 'mine.txt').read_text() == 'keep'
