@@ -106,10 +106,12 @@ def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:
     """What differs between two recorded runs besides the valve model -- parameters, scenario,
     control period -- from their provenance records (bags only; nothing for CSVs): a comparison
     of two runs of different actuators or inputs is rarely what was meant."""
-    from ..bag.reader import read_bag
+    from ..bag.reader import BagRun, mcap_path, read_provenance
     if Path(ref).suffix in ('.csv', '.parquet') or Path(run).suffix in ('.csv', '.parquet'):
         return []
-    a, b = read_bag(ref), read_bag(run)
+    # the provenance records only (the signals were read already): BagRun parses them
+    a, b = (BagRun(path=Path(x), signals={}, topics={}, series={},
+                   provenance=read_provenance(mcap_path(x))) for x in (ref, run))
     if not a.provenance or not b.provenance:
         return []
     out = []

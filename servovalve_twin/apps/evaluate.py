@@ -9,14 +9,14 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 
 from ..bag.anybag import open_any_bag
 from ..bag.cdr import decode_float64
-from ..bag.reader import PROVENANCE
+from ..bag.reader import read_provenance
 from ..errors import BagError
-from ..physics.params import DEFAULTS, PARAM_NAMES, EhaParams
+from ..physics.params import EhaParams
 from ..prognostics.algorithm import AlgorithmRun, load_algorithm, run_algorithm
+from .replay import recorded_params
 
 FLOAT64 = 'std_msgs/msg/Float64'
 
@@ -54,22 +54,12 @@ def bag_inputs(bag_path: str | Path, names) -> tuple[np.ndarray, dict[str, np.nd
 
 def bag_nominal(bag_path: str | Path) -> tuple[EhaParams, float]:
     """The nominal parameters and control period the bag was recorded with (the twin's
-    provenance record), or the defaults and 1 ms for a bag without one."""
+    provenance record), or the defaults and 1 ms for a bag without one (not the twin's, or
+    sqlite3)."""
     p = Path(bag_path)
     files = [p] if p.is_file() else sorted(p.glob('*.mcap'))
-    prov: Mapping[str, str] = {}
-    if files and files[0].suffix == '.mcap':
-        from mcap.reader import make_reader
-        try:
-            with open(files[0], 'rb') as fh:
-                for meta in make_reader(fh).iter_metadata():
-                    if meta.name == PROVENANCE:
-                        prov = dict(meta.metadata)
-        except Exception:  # noqa: BLE001 -- no summary: the messages still play
-            prov = {}
-    params = yaml.safe_load(prov['params']) if prov.get('params') else {}
-    nominal = DEFAULTS.replace(**{k: v for k, v in params.items() if k in PARAM_NAMES})
-    return nominal, float(prov.get('control_period', 1e-3))
+    prov = read_provenance(files[0]) if files and files[0].suffix == '.mcap' else {}
+    return recorded_params(prov, p), float(prov.get('control_period', 1e-3))
 
 
 def evaluate(bag_path: str | Path, algorithm: Any, params: Mapping[str, Any] | None = None

@@ -48,11 +48,19 @@ def scenario_from_bag(run: BagRun) -> Scenario:
 
 def bag_params(run: BagRun) -> EhaParams:
     """The parameters the bag was recorded with (defaults for a bag without provenance)."""
-    values = {k: v for k, v in run.params().items() if k in PARAM_NAMES}
+    return recorded_params(run.provenance, run.path)
+
+
+def recorded_params(provenance: Mapping[str, str], path: str | Path) -> EhaParams:
+    """The parameters of a provenance record (defaults for what it does not list)."""
+    import yaml
+    text = provenance.get('params')
+    values = {k: v for k, v in (yaml.safe_load(text) if text else {}).items()
+              if k in PARAM_NAMES}
     try:
         return DEFAULTS.replace(**values)
     except TwinError as exc:
-        raise BagError(f'bag {str(run.path)!r}: its recorded parameters are invalid: {exc}'
+        raise BagError(f'bag {str(path)!r}: its recorded parameters are invalid: {exc}'
                        ) from None
 
 

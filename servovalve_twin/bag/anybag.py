@@ -210,6 +210,13 @@ def _file_summary(f: Path, storage: str) -> tuple[dict[str, TopicInfo], tuple[in
     return topics, (t0 or 0, t1 or 0, n)
 
 
+def _topic_info(channel, schema) -> TopicInfo:
+    """A topic as an MCAP channel (and its schema) describes it; the count is added later."""
+    return TopicInfo(channel.topic, schema.name if schema else '',
+                     normalise_qos(channel.metadata.get('offered_qos_profiles', '')),
+                     serialization_format=channel.message_encoding)
+
+
 def _mcap_statistics(f: Path):
     """The MCAP summary's channels and statistics, CRCs checked; None without a summary."""
     from mcap.reader import make_reader
@@ -226,11 +233,7 @@ def _mcap_statistics(f: Path):
     st = summary.statistics
     topics = {}
     for cid, ch in summary.channels.items():
-        schema = summary.schemas.get(ch.schema_id)
-        info = topics.setdefault(ch.topic, TopicInfo(
-            ch.topic, schema.name if schema else '',
-            normalise_qos(ch.metadata.get('offered_qos_profiles', '')),
-            serialization_format=ch.message_encoding))
+        info = topics.setdefault(ch.topic, _topic_info(ch, summary.schemas.get(ch.schema_id)))
         info.count += st.channel_message_counts.get(cid, 0)
     n = st.message_count
     return topics, (st.message_start_time if n else 0, st.message_end_time if n else 0, n)
@@ -248,27 +251,15 @@ def _file_messages(f: Path, storage: str, keep, start_ns, end_ns,
 def _mcap_messages(f, keep, start_ns, end_ns, topics_out):
     from mcap.reader import make_reader
     try:
-        if topics_out is not None:              # once, when the bag is opened
+        if topics_out is not None:              # the summary scan, when the bag is opened
             check_data_crc(f)
         with open(f, 'rb') as fh:
             reader = make_reader(fh, validate_crcs=True)
-            if topics_out is not None:
-                summary = reader.get_summary()
-                if summary is not None:
-                    for ch in summary.channels.values():
-                        schema = summary.schemas.get(ch.schema_id)
-                        topics_out.setdefault(ch.topic, TopicInfo(
-                            ch.topic, schema.name if schema else '',
-                            normalise_qos(ch.metadata.get('offered_qos_profiles', '')),
-                            serialization_format=ch.message_encoding))
             for schema, ch, msg in reader.iter_messages(
                     topics=None if keep is None else sorted(keep), start_time=start_ns,
                     end_time=None if end_ns is None else end_ns + 1, log_time_order=True):
                 if topics_out is not None and ch.topic not in topics_out:
-                    topics_out[ch.topic] = TopicInfo(
-                        ch.topic, schema.name if schema else '',
-                        normalise_qos(ch.metadata.get('offered_qos_profiles', '')),
-                        serialization_format=ch.message_encoding)
+                    topics_out[ch.topic] = _topic_info(ch, schema)
                 yield ch.topic, msg.log_time, bytes(msg.data)
     except OSError as exc:
         raise BagError(f'cannot read {str(f)!r}: {exc.strerror}') from None

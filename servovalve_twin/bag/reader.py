@@ -69,6 +69,23 @@ def check_data_crc(file: Path) -> None:
                        'match (a byte was changed outside the message chunks)')
 
 
+def read_provenance(file: Path) -> dict[str, str]:
+    """The twin's provenance record of an MCAP file ({} when it has none), CRCs checked."""
+    from mcap.reader import make_reader
+    try:
+        check_data_crc(file)
+        with open(file, 'rb') as fh:
+            for meta in make_reader(fh, validate_crcs=True).iter_metadata():
+                if meta.name == PROVENANCE:
+                    return dict(meta.metadata)
+    except OSError as exc:
+        raise BagError(f'cannot read bag {str(file)!r}: {exc.strerror}') from None
+    except _mcap_errors() as exc:
+        raise BagError(f'bag {str(file)!r} is truncated or corrupt ({type(exc).__name__}: '
+                       f'{str(exc)[:120]})') from None
+    return {}
+
+
 @dataclasses.dataclass
 class BagRun:
     """A run read back from a bag: the 1 ms rows of its Float64 topics and its provenance."""

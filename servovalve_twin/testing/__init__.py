@@ -121,8 +121,8 @@ class _Replayer:
         """Hand one message to every subscription of ``topic`` among the nodes, in turn."""
         for n in self.nodes:
             for sub in list(n.subscriptions):
-                if sub.topic_name != topic or _is_time_source(n, sub):
-                    continue
+                if sub.topic_name != topic or topic == '/clock':
+                    continue          # simulated time is set here, not by a time source
                 if sub.raw:
                     msg = data if isinstance(data, bytes) else _serialize(data)
                 else:
@@ -215,10 +215,6 @@ class _Replayer:
                 raise exc
             self._wrap_publishers()
             self._route()
-
-
-def _is_time_source(node: Node, sub) -> bool:
-    return sub.topic_name == '/clock'
 
 
 def _call(callback, msg) -> None:
