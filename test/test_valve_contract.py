@@ -160,3 +160,19 @@ def test_entry_is_consistent(model):
     if model.has_ports:
         assert np.isfinite(info['p1']) and np.isfinite(info['p2'])
         assert info['p1'] - info['p2'] == pytest.approx(model(2e-5, 1e-5, 2e7, DEFAULTS)[0])
+
+
+def test_compiled_loops_select_this_model_by_its_id(model):
+    """The step loops call the model through ``valve_p12(model.id, ...)``: its branch must be
+    this model's function, bit for bit with the same state in and out (a branch pointing at a
+    neighbour, or a new model without a branch, fails here); ids are the registry positions."""
+    from servovalve_twin.physics.valves import valve_p12
+    assert model.id == VALVE_MODEL_NAMES.index(model.name)
+    kernel = model.kernel(DEFAULTS)
+    vs_a = model.initial_state(DEFAULTS)
+    vs_b = vs_a.copy()
+    for xs, qj, psr in zip(*random_points(100, seed=7)):
+        a = model.fn(xs, qj, psr, kernel, vs_a)
+        b = valve_p12(model.id, xs, qj, psr, kernel, vs_b)
+        assert a == b or (math.isnan(a) and math.isnan(b))
+        np.testing.assert_array_equal(vs_a, vs_b)

@@ -1,11 +1,11 @@
 """ECU position loop (paper Fig. 18): Err = Com - XJ, Cor = sat(GAP*Err, CorM)."""
 
-from numba import njit
+from ..jitcache import jit
 
 from .valves.simplified import sat
 
 
-@njit(cache=True)
+@jit
 def ecu_current(com, xj, P):
     """Servovalve current Cor [A] for command ``com`` [m] and measured jack position ``xj`` [m].
 

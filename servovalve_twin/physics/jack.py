@@ -11,12 +11,12 @@ FA = AJ*P12 - FR - CJ*DXJ:
    of chattering around zero.
 """
 
-from numba import njit
+from ..jitcache import jit
 
 from .servovalve import S_DXJ, S_XJ, end_of_travel
 
 
-@njit(cache=True)
+@jit
 def jack_step(s, p12, fr, P):
     """Advance XJ, DXJ by one DT under P12 [Pa] and the external load FR [N] (> 0 opposes +XJ)."""
     dt = P.DT

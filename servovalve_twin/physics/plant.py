@@ -6,33 +6,33 @@ One step from t to t + DT, with inputs held over the step (zero-order hold):
 1. the valve model turns the state at t (XS, QJ = AJ*DXJ) and PSR into P12;
 2. the jack integrates under P12 and FR; the servovalve under the current Cor.
 
-Both the ROS-free :func:`~.simulate.simulate` and the ROS plant node call :func:`plant_step`
-(through :func:`run_steps` and :func:`run_tick`): the physics is one code path, which is why a
-ROS run equals a ROS-free run to the last bit.
+Both the ROS-free :func:`~.simulate.simulate` (through :func:`run_steps`) and the ROS plant node
+(through :func:`run_tick`) take this step: :func:`plant_step`, which :func:`run_steps` writes
+out in its loop body because as a call there it ran twice as slow (measured; numba did not keep
+the state in registers across it). The tests hold the two to the last bit (a ROS run equals a
+ROS-free run, every column).
 """
 
-from numba import njit
-
-# The loops below take the valve model's compiled function as an argument, so numba compiles one
-# specialisation per model. They are deliberately not cached on disk: numba's cache of functions
-# with dispatcher arguments goes stale when a valve module changes ("underlying object has
-# vanished"). Compiling costs about 1 s per model and process (see bench/README.md).
-
+from ..jitcache import jit
 from .ecu import ecu_current
 from .jack import jack_step
 from .servovalve import S_DXJ, S_XJ, S_XS, servovalve_step
 from .valve_state import V_FAIL, V_P1, V_P2, V_XJ
+from .valves import valve_p12
 
-# columns of the rows written by run_steps (t is filled in by the caller)
+# The loops select the valve model by its registry id (valves.valve_p12), so they are compiled
+# once, cached on disk, and loaded by every later process (servovalve_twin.jitcache).
+
+# columns of the rows written by run_steps
 OUT_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj', 'p1', 'p2')
 TICK_OUT = ('p12', 'qj', 'p1', 'p2')
 
 
-@njit
-def plant_step(valve_fn, s, vs, P, cor, fr, psr, integrate):
+@jit
+def plant_step(model_id, s, vs, P, cor, fr, psr, integrate):
     """P12 and QJ at the state ``s`` (time t); then, if ``integrate``, advance ``s`` to t + DT.
 
-    :param valve_fn: a registered valve model's compiled function
+    :param model_id: a registered valve model's ``id``
     :param s: plant state (:mod:`.servovalve` layout), updated in place
     :param vs: valve state (:mod:`.valve_state` layout), updated in place
     :param cor: servovalve current [A], held over the step
@@ -41,41 +41,56 @@ def plant_step(valve_fn, s, vs, P, cor, fr, psr, integrate):
     """
     qj = P.AJ * s[S_DXJ]
     vs[V_XJ] = s[S_XJ]
-    p12 = valve_fn(s[S_XS], qj, psr * P.PSR_scale, P, vs)
+    p12 = valve_p12(model_id, s[S_XS], qj, psr * P.PSR_scale, P, vs)
     if integrate:
         jack_step(s, p12, fr, P)
         servovalve_step(s, cor, P)
     return p12, qj
 
 
-@njit
-def run_steps(valve_fn, s, vs, P_arr, seg, com, fr, psr, ecu_every, out_every, out):
-    """Run ``len(com) - 1`` steps; the last input sample is the end instant, evaluated without
-    integrating so that the last output row holds P12 at the end time.
+@jit
+def run_steps(model_id, s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
+              carry, out, out_dt):
+    """Run the steps ``i0 .. i0 + len(com) - 1`` of a run of ``n`` steps; called chunk after
+    chunk, so that a run's inputs are never held whole. Step ``n`` is the end instant,
+    evaluated without integrating so that the last output row holds P12 at the end time.
 
-    ``ecu_every`` = 0 evaluates the ECU every step (continuous); n > 0 samples it every n steps
-    and holds Cor in between. Every ``out_every`` steps a row of :data:`OUT_COLUMNS` is written.
-    ``P_arr`` stacks :meth:`~.params.EhaParams.kernel_array` rows, one per parameter segment
-    (faults change parameters mid-run); ``seg[i]`` is the row in force on step i. Returns -1, or
-    the index of the step at which the valve model failed.
+    ``com``, ``fr``, ``psr``: the inputs of those steps. ``ecu_every`` = 0 evaluates the ECU
+    every step (continuous); k > 0 samples it every k steps and holds Cor in between. Every
+    ``out_every`` steps, row ``i // out_every`` of :data:`OUT_COLUMNS` is written to ``out``
+    (t = row*``out_dt``). ``P_arr`` stacks :meth:`~.params.EhaParams.kernel_array` rows, one
+    per parameter segment (faults change parameters mid-run); row k is in force from step
+    ``seg_start[k]`` on. ``carry`` = [Cor, segment] is kept between chunks. Returns -1, or the
+    index of the step at which the valve model failed.
     """
-    n = com.shape[0] - 1
-    row = 0
-    cor = 0.0
-    for i in range(n + 1):
-        P = P_arr[seg[i]]
+    cor = carry[0]
+    k = int(carry[1])
+    n_seg = seg_start.shape[0]
+    for j in range(com.shape[0]):
+        i = i0 + j
+        while k + 1 < n_seg and i >= seg_start[k + 1]:
+            k += 1
+        P = P_arr[k]
         if ecu_every == 0 or i % ecu_every == 0:
-            cor = ecu_current(com[i], s[S_XJ], P)
+            cor = ecu_current(com[j], s[S_XJ], P)
         xs = s[S_XS]
         xj = s[S_XJ]
         dxj = s[S_DXJ]
-        p12, qj = plant_step(valve_fn, s, vs, P, cor, fr[i], psr[i], i < n)
+        # plant_step, written out (see the module docstring)
+        qj = P.AJ * dxj
+        vs[V_XJ] = xj
+        p12 = valve_p12(model_id, xs, qj, psr[j] * P.PSR_scale, P, vs)
+        if i < n:
+            jack_step(s, p12, fr[j], P)
+            servovalve_step(s, cor, P)
         if vs[V_FAIL] != 0.0:
             return i
         if i % out_every == 0:
-            out[row, 1] = com[i]
-            out[row, 2] = fr[i]
-            out[row, 3] = psr[i]
+            row = i // out_every
+            out[row, 0] = row * out_dt
+            out[row, 1] = com[j]
+            out[row, 2] = fr[j]
+            out[row, 3] = psr[j]
             out[row, 4] = cor
             out[row, 5] = xs
             out[row, 6] = xj
@@ -84,12 +99,13 @@ def run_steps(valve_fn, s, vs, P_arr, seg, com, fr, psr, ecu_every, out_every, o
             out[row, 9] = qj
             out[row, 10] = vs[V_P1]
             out[row, 11] = vs[V_P2]
-            row += 1
+    carry[0] = cor
+    carry[1] = k
     return -1
 
 
-@njit
-def run_tick(valve_fn, s, vs, P_arr, cor, fr, psr, n_sub, out):
+@jit
+def run_tick(model_id, s, vs, P_arr, cor, fr, psr, n_sub, out):
     """One control period of the ROS plant: ``n_sub`` steps with Cor, FR, PSR held.
 
     ``out`` receives :data:`TICK_OUT` at the start of the tick (the valve's response to the
@@ -99,7 +115,7 @@ def run_tick(valve_fn, s, vs, P_arr, cor, fr, psr, n_sub, out):
     P = P_arr[0]
     n = n_sub if n_sub > 0 else 1
     for j in range(n):
-        p12, qj = plant_step(valve_fn, s, vs, P, cor, fr, psr, n_sub > 0)
+        p12, qj = plant_step(model_id, s, vs, P, cor, fr, psr, n_sub > 0)
         if vs[V_FAIL] != 0.0:
             return j
         if j == 0:

@@ -69,21 +69,30 @@ class Profile:
     points: tuple[tuple[float, float], ...] = ()
     sine: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
 
-    def values(self, t_ns: np.ndarray) -> np.ndarray:
-        """The signal at the integer-nanosecond times ``t_ns``."""
+    def values(self, t_ns: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The signal at the integer-nanosecond times ``t_ns`` (ascending), into ``out`` if
+        given (simulate() reuses one buffer per signal for all its chunks)."""
         t_ns = np.asarray(t_ns, dtype=np.int64)
+        if out is None:
+            out = np.empty(t_ns.shape)
         if self.kind == 'steps':
-            bp = np.array([_ns(t) for t, _ in self.points], dtype=np.int64)
-            vals = np.array([v for _, v in self.points])
-            return vals[np.searchsorted(bp, t_ns, side='right') - 1]
+            # piecewise constant: filled segment by segment between the breakpoints (the value
+            # in force at t is that of the last breakpoint <= t), not looked up per sample
+            cuts = np.searchsorted(t_ns, [_ns(t) for t, _ in self.points], side='left')
+            out[:cuts[0]] = self.points[-1][1]       # before the first point (never: it is 0)
+            for (_, v), a, b in zip(self.points, cuts, list(cuts[1:]) + [t_ns.shape[0]]):
+                out[a:b] = v
+            return out
         if self.kind == 'ramp':
             ts = np.array([t for t, _ in self.points])
             vals = np.array([v for _, v in self.points])
-            return np.interp(t_ns * 1e-9, ts, vals)
+            out[:] = np.interp(t_ns * 1e-9, ts, vals)
+            return out
         offset, amplitude, frequency, phase, start = self.sine
         t = (t_ns - _ns(start)) * 1e-9
-        out = offset + amplitude * np.sin(2.0 * math.pi * frequency * t + phase)
-        return np.where(t >= 0.0, out, offset)
+        wave = offset + amplitude * np.sin(2.0 * math.pi * frequency * t + phase)
+        out[:] = np.where(t >= 0.0, wave, offset)
+        return out
 
     def value(self, t_ns: int) -> float:
         return float(self.values(np.array([t_ns]))[0])
@@ -129,9 +138,13 @@ class Scenario:
     def duration_ns(self) -> int:
         return _ns(self.duration)
 
-    def inputs(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(Com, FR, PSR) at the integer-nanosecond times ``t_ns``."""
-        return self.com.values(t_ns), self.fr.values(t_ns), self.psr.values(t_ns)
+    def inputs(self, t_ns: np.ndarray, out: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Com, FR, PSR) at the integer-nanosecond times ``t_ns``; into the rows of ``out``
+        (shape (3, len(t_ns))) if given."""
+        if out is None:
+            return self.com.values(t_ns), self.fr.values(t_ns), self.psr.values(t_ns)
+        return tuple(getattr(self, s).values(t_ns, out[i]) for i, s in enumerate(SIGNALS))
 
     def phases(self) -> list[tuple[float, float]]:
         """The run split at every breakpoint of every signal: [(t0, t1), ...]."""

@@ -7,7 +7,7 @@ both with ends of travel (MODELS.md section 4).
 At steady state XF = 0 and XS = GM*(Cor + CorB)/KFB.
 """
 
-from numba import njit
+from ..jitcache import jit
 
 S_XF = 0      # flapper displacement XF [m]
 S_DXF = 1     # flapper velocity DXF [m/s]
@@ -17,7 +17,7 @@ S_DXJ = 4     # jack velocity DXJ [m/s]
 S_SIZE = 5
 
 
-@njit(cache=True, inline='always')
+@jit(inline='always')
 def end_of_travel(x, v, lim):
     """Clamp a position to +-lim and zero the velocity pointing out of the stop, so that the
     stage leaves the stop as soon as the net force reverses. Returns (x, v)."""
@@ -28,7 +28,7 @@ def end_of_travel(x, v, lim):
     return x, v
 
 
-@njit(cache=True)
+@jit
 def servovalve_step(s, cor, P):
     """Advance flapper and spool by one DT (semi-implicit Euler: velocity first, then position),
     both stages stopped at their ends of travel (:func:`end_of_travel`)."""

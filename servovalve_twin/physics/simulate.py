@@ -1,6 +1,6 @@
 """ROS-free runs: :func:`simulate` (a whole scenario in one compiled call) and :class:`EhaPlant`
 (the stateful plant the ROS node advances one control period at a time). Both go through
-:func:`~.plant.plant_step`.
+:func:`~.plant.plant_step` (:func:`~.plant.run_steps` and :func:`~.plant.run_tick`).
 
 Run conventions (MODELS.md section 9): time is an integer count of DT steps; inputs are held
 over a step; output row i holds t_i = i*1 ms, the state at t_i, and the inputs, Cor and P12 in
@@ -27,10 +27,9 @@ from .servovalve import S_DXJ, S_SIZE, S_XJ, S_XS
 from .valves import ValveModel, get_valve_model
 
 OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
-# the per-step arrays simulate() builds (time, Com, FR, PSR, fault segment: 5 x 8 bytes) and the
-# most it will allocate for them: a long run at a fine DT is refused up front, not by the OS
-_BYTES_PER_STEP = 40
-MAX_RUN_BYTES = 4 * 2**30
+#: steps per chunk: simulate() evaluates the inputs and runs the compiled loop chunk by chunk,
+#: so its memory is that of the output rows plus one chunk (~0.5 MB), whatever the run's length
+CHUNK_STEPS = 1 << 14
 CSV_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj')
 PORT_COLUMNS = ('p1', 'p2')
 SIGNAL_UNITS = dict(t='s', com='m', fr='N', psr='Pa', cor='A', xs='m', xj='m', dxj='m/s',
@@ -101,40 +100,42 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     n_steps = scn.duration_ns // p.dt_ns
     if n_steps * p.dt_ns != scn.duration_ns:
         raise ParameterError(f'duration {scn.duration} s is not a whole number of DT = {p.DT} s')
-    need = (n_steps + 1) * _BYTES_PER_STEP
-    if need > MAX_RUN_BYTES:
-        raise ParameterError(f'a run of {scn.duration:g} s at DT = {p.DT:g} s ({n_steps} steps) '
-                             f'would need {need / 2**30:.1f} GiB of memory for its inputs; '
-                             f'the limit is {MAX_RUN_BYTES / 2**30:.0f} GiB (shorten the run or '
-                             'raise DT)')
-    t_ns = np.arange(n_steps + 1, dtype=np.int64) * p.dt_ns
-    com, fr, psr = scn.inputs(t_ns)
-    kernels, seg = _fault_segments(model, scn, p, t_ns)
-    n_rows = n_steps // out_every + 1
+    n_rows = n_steps // out_every + 1      # the memory: ~0.2 kB per row, 0.7 GB at 3600 s
+    kernels, seg_start = _fault_segments(model, scn, p)
     out = np.full((n_rows, len(OUT_COLUMNS)), np.nan)
     s = np.zeros(S_SIZE)
     vs = model.initial_state(p)
-    failed = run_steps(model.fn, s, vs, kernels, seg, com, fr, psr, ecu_every, out_every, out)
-    if failed >= 0:
-        raise ModelError(f'valve model {model.name} failed to converge at t = '
-                         f'{failed * p.DT:.6f} s')
-    out[:, 0] = np.arange(n_rows) * (OUTPUT_PERIOD_NS * 1e-9)
+    carry = np.zeros(2)             # Cor and the parameter segment, carried between chunks
+    # one buffer for the chunk's times and one per input, reused chunk after chunk
+    steps = np.arange(min(CHUNK_STEPS, n_steps + 1), dtype=np.int64)
+    t_buf = np.empty_like(steps)
+    u_buf = np.empty((3, steps.shape[0]))
+    for i0 in range(0, n_steps + 1, CHUNK_STEPS):
+        m = min(CHUNK_STEPS, n_steps + 1 - i0)
+        t_ns = np.add(steps[:m], i0, out=t_buf[:m])
+        t_ns *= p.dt_ns
+        com, fr, psr = scn.inputs(t_ns, u_buf[:, :m])
+        failed = run_steps(model.id, s, vs, kernels, seg_start, com, fr, psr, i0, n_steps,
+                           ecu_every, out_every, carry, out, OUTPUT_PERIOD_NS * 1e-9)
+        if failed >= 0:
+            raise ModelError(f'valve model {model.name} failed to converge at t = '
+                             f'{failed * p.DT:.6f} s')
     cols = CSV_COLUMNS + (PORT_COLUMNS if model.has_ports else ())
     signals = {c: out[:, OUT_COLUMNS.index(c)].copy() for c in cols}
     return RunResult(valve_model=model.name, scenario=scn, params=p, signals=signals,
                      ecu_period=ecu_period, info=dict(model.run_totals(vs), steps=n_steps))
 
 
-def _fault_segments(model: ValveModel, scn: Scenario, p: EhaParams, t_ns: np.ndarray
+def _fault_segments(model: ValveModel, scn: Scenario, p: EhaParams
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Stacked kernel parameters, one row per stretch between fault events, and the row in
-    force on each step (an event applies from the first step starting at or after it)."""
+    """Stacked kernel parameters, one row per stretch between fault events, and the first
+    step of each (an event applies from the first step starting at or after it)."""
     events = scn.fault_events(p)
     times = sorted({int(round(e.at * 1e9)) for e in events})
     rows = [model.kernel_array(p)] + [model.kernel_array(fault_params(events, p, t * 1e-9))
                                       for t in times]
-    seg = np.searchsorted(np.array(times, dtype=np.int64), t_ns, side='right').astype(np.int64)
-    return np.concatenate(rows), seg
+    start = [0] + [-(-t // p.dt_ns) for t in times]
+    return np.concatenate(rows), np.array(start, dtype=np.int64)
 
 
 class EhaPlant:
@@ -194,7 +195,7 @@ class EhaPlant:
         for label, v in (('Cor', cor), ('FR', fr), ('PSR', psr)):
             if not math.isfinite(v):
                 raise ModelError(f'{label} must be finite, got {v!r}')
-        failed = run_tick(self.model.fn, self.s, self.vs, self._kernel_arr, float(cor), float(fr),
+        failed = run_tick(self.model.id, self.s, self.vs, self._kernel_arr, float(cor), float(fr),
                           float(psr), int(n_sub), self.last)
         if failed >= 0:
             raise ModelError(f'valve model {self.model.name} failed to converge')
@@ -205,7 +206,7 @@ class EhaPlant:
     def compile(self) -> None:
         """Compile the tick loop for the current model now (numba compiles on first call),
         on scratch copies of the state: the first real tick then costs what every tick costs."""
-        run_tick(self.model.fn, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
+        run_tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
                  self.params.PSRN, 1, np.zeros(len(TICK_OUT)))
 
     def diagnostics(self) -> dict[str, Any]:

@@ -16,12 +16,14 @@ which default thresholds. Nothing outside ``valves/`` tests a model's name.
 
 Adding a model -- the contract the tests enforce on every entry:
 
-1. write ``fn`` as an ``@njit`` function with the signature above, in SI units, in a file of
-   this folder; it must return a finite P12 for any finite input, and may read or update only
-   its documented ``vs`` slots (and the kernel slots ``VC0``.. it fills through ``constants``);
+1. write ``fn`` as a ``@jit`` function (:mod:`servovalve_twin.jitcache`) with the signature
+   above, in SI units, in a file of this folder; it must return a finite P12 for any finite
+   input, and may read or update only its documented ``vs`` slots (and the kernel slots
+   ``VC0``.. it fills through ``constants``);
 2. register it below in :data:`VALVE_MODELS` under the name users type (``valve_model:=NAME``),
    with the paper figure it reproduces and what differs from the defaults of
-   :class:`ValveModel`;
+   :class:`ValveModel`, and add its branch to :func:`valve_p12` under its position in the
+   registry (its ``id``);
 3. the contract tests (``test/test_valve_contract.py``) then run it at random points, through
    ``simulate``, in the stateful plant, across a mid-run switch, in a short ROS twin run and
    in its bag, with no further change.
@@ -36,6 +38,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ...errors import ModelError
+from ...jitcache import jit
 from ..params import EhaParams
 from ..valve_state import (V_CALLS, V_FAIL, V_ITSUM, V_MAXITER, V_NCAV, V_NONCONV, V_P12,
                            V_XJ, VS_SIZE, new_state)
@@ -72,6 +75,8 @@ class ValveModel:
     fn: Callable
     figure: str
     summary: str
+    #: position in the registry: the compiled loops select the model by it (:func:`valve_p12`)
+    id: int = -1
     has_ports: bool = False     # publishes P1/P2 (HD)
     iterative: bool = False     # counts iterations and non-converged calls (C4, HD)
     #: may serve as the monitor model (a fast simplified model; HD is the plant reference)
@@ -138,7 +143,7 @@ class ValveModel:
 
 
 #: name -> model. The names are those of the command line, the ROS parameter and the bags.
-VALVE_MODELS: dict[str, ValveModel] = {m.name: m for m in (
+VALVE_MODELS: dict[str, ValveModel] = {m.name: dataclasses.replace(m, id=i) for i, m in enumerate((
     ValveModel('linear', _s.linear, 'Fig. 4', 'P12 = GPN*XS - GPQ*QJ (never stalls)'),
     ValveModel('saturated', _s.saturated, 'Fig. 5', 'P12 = sat(GPN*XS, PSR) - GPQ*QJ'),
     ValveModel('saturated_downstream', _s.saturated_downstream, 'Fig. 11',
@@ -161,9 +166,48 @@ VALVE_MODELS: dict[str, ValveModel] = {m.name: m for m in (
                has_ports=True, iterative=True, monitor=False, monitor_thresholds=None,
                rest_state=_hd.hd_initial_state, handover=_hd.hd_handover,
                last_info=_hd.hd_info),
-)}
+))}
 
 VALVE_MODEL_NAMES = tuple(VALVE_MODELS)
+
+
+@jit
+def valve_p12(model_id, xs, qj, psr, P, vs):
+    """P12 of the registered model with ``id`` = ``model_id`` (its ``fn``, same signature).
+
+    The compiled loops take the model as this integer rather than as its function object: a
+    loop with a function argument is compiled again in every process (numba keys such
+    arguments on the object's identity, so its disk cache never hits) and costs ~5 us per call
+    to pass one in; an integer lets one loop, cached on disk, serve every model, with each
+    model's code inlined in its branch. The branches follow the registry's order (the contract
+    test checks each one against its model's ``fn``); an id without a branch fails the step.
+    """
+    if model_id == 0:
+        return _s.linear(xs, qj, psr, P, vs)
+    if model_id == 1:
+        return _s.saturated(xs, qj, psr, P, vs)
+    if model_id == 2:
+        return _s.saturated_downstream(xs, qj, psr, P, vs)
+    if model_id == 3:
+        return _s.linear_leakage(xs, qj, psr, P, vs)
+    if model_id == 4:
+        return _s.model_a(xs, qj, psr, P, vs)
+    if model_id == 5:
+        return _s.model_b(xs, qj, psr, P, vs)
+    if model_id == 6:
+        return _s.model_c1(xs, qj, psr, P, vs)
+    if model_id == 7:
+        return _s.model_c2(xs, qj, psr, P, vs)
+    if model_id == 8:
+        return _s.model_c3(xs, qj, psr, P, vs)
+    if model_id == 9:
+        return _s.model_c4(xs, qj, psr, P, vs)
+    if model_id == 10:
+        return _sq.model_sq(xs, qj, psr, P, vs)
+    if model_id == 11:
+        return _hd.hd_solve(xs, qj, psr, P, vs)
+    vs[V_FAIL] = 1.0
+    return 0.0
 #: the models that may serve as the monitor model
 MONITOR_MODEL_NAMES = tuple(n for n, m in VALVE_MODELS.items() if m.monitor)
 

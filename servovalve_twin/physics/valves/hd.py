@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from ...jitcache import jit
 
 from ...errors import ModelError
 from ..params import EhaParams
@@ -36,7 +36,7 @@ _GS_MAX = 200
 _G_CAP = 1.0e-3        # m^3/(s*Pa): caps dQ/ddp of a pure orifice at dp = 0 (infinite there)
 
 
-@njit(cache=True, inline='always')
+@jit(inline='always')
 def edge_resistances(x, P):
     """(R_l, R_t) of an edge with opening x [m]: laminar [Pa*s/m^3] and turbulent [Pa*s^2/m^6]."""
     r = P.r
@@ -53,7 +53,7 @@ def edge_resistances(x, P):
     return 12.0 * P.mu * ell / (P.w * c ** 3), P.rho / (2.0 * cwd * cwd)
 
 
-@njit(cache=True, inline='always')
+@jit(inline='always')
 def edge_flow(rl, rt, dp):
     """Flow [m^3/s] through an edge under dp [Pa] and its conductance dQ/ddp."""
     a = abs(dp)
@@ -65,7 +65,7 @@ def edge_flow(rl, rt, dp):
     return q, g
 
 
-@njit(cache=True, inline='always')
+@jit(inline='always')
 def _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p):
     """F(p) = Q_in(PS - p) - Q_out(p - PR) + b - gdiag*p and dF/dp (< 0)."""
     qi, gi = edge_flow(rli, rti, ps - p)
@@ -73,7 +73,7 @@ def _port_residual(rli, rti, rlo, rto, ps, pr, b, gdiag, p):
     return qi - qo + b - gdiag * p, -(gi + go + gdiag)
 
 
-@njit(cache=True)
+@jit
 def _solve_port(rli, rti, rlo, rto, ps, pr, b, gdiag, p0, span):
     """Root of the strictly decreasing port residual by the Illinois method (regula falsi that
     halves a stale end), inside a bracket grown from the warm start ``p0`` in doubling steps.
@@ -130,7 +130,7 @@ def _solve_port(rli, rti, rlo, rto, ps, pr, b, gdiag, p0, span):
     return p, n, False
 
 
-@njit(cache=True, inline='always')
+@jit(inline='always')
 def _continuity(p1, p2, ps, pr, qj, clk, c1, c2, p1_old, p2_old,
                 rl_s1, rt_s1, rl_1r, rt_1r, rl_s2, rt_s2, rl_2r, rt_2r):
     """Port residuals F1, F2 [m^3/s] and minus their diagonal derivatives a1, a2 [m^3/(s*Pa)]."""
@@ -144,7 +144,7 @@ def _continuity(p1, p2, ps, pr, qj, clk, c1, c2, p1_old, p2_old,
     return f1, f2, ga + gb + clk + c1, gc + gd + clk + c2
 
 
-@njit(cache=True)
+@jit
 def hd_solve(xs, qj, psr, P, vs):
     """Port pressures (P1, P2) of the four-edge valve; updates the warm start and diagnostics
     in ``vs``. Returns P12 = P1 - P2 [Pa].

@@ -57,7 +57,7 @@ non-monotonic in QJ by steps of about 0.01 %; the tests check monotonicity up to
 
 import math
 
-from numba import njit
+from ...jitcache import jit
 
 
 def sq_constants(params) -> tuple[float]:
@@ -66,7 +66,7 @@ def sq_constants(params) -> tuple[float]:
     return (params.gpn / (params.GPQ * math.sqrt(params.PSRN)),)
 
 
-@njit(cache=True, inline='always')
+@jit(inline='always')
 def _branches(a, b, ql, ps, a2ps2, b2ps2, ab2ps2, inv_ab2):
     """Leak-free P12 for XS >= 0 (A = a, B = b, QL = ql, PS = ps), with the shared terms
     ``2*A^2*PS``, ``2*B^2*PS``, ``2*PS*(A^2 + B^2)`` and ``1/(A^2 + B^2)`` computed once per step.
@@ -82,7 +82,7 @@ def _branches(a, b, ql, ps, a2ps2, b2ps2, ab2ps2, inv_ab2):
     return ps - u * u
 
 
-@njit(cache=True)
+@jit
 def model_sq(xs, qj, psr, P, vs):
     """SQ: explicit four-edge orifice-law model (see the module docstring for the derivation)."""
     if psr <= 0.0:

@@ -14,12 +14,12 @@ CLk*GPQ`` is the gain of the leakage loop, whose instantaneous form is solved in
 (the ``/(1 + k)``) because evaluated with the previous P12 it diverges for k > 1 (Figs. 6-7).
 """
 
-from numba import njit
+from ...jitcache import jit
 
 from ..valve_state import V_CALLS, V_ITER, V_ITSUM, V_MAXITER, V_NONCONV, V_P12
 
 
-@njit(cache=True, inline='always')
+@jit(inline='always')
 def sat(u, lim):
     """sat(u, L) = max(-L, min(L, u))."""
     if u > lim:
@@ -29,56 +29,56 @@ def sat(u, lim):
     return u
 
 
-@njit(cache=True)
+@jit
 def linear(xs, qj, psr, P, vs):
     """Fig. 4: P12 = GPN*XS - GPQ*QJ. Never stalls, ignores PSR."""
     return P.GPN * xs - P.GPQ * qj
 
 
-@njit(cache=True)
+@jit
 def saturated(xs, qj, psr, P, vs):
     """Fig. 5: P12 = sat(GPN*XS, PSR) - GPQ*QJ. Clamping upstream of the flow feedback caps the
     no-load flow at GQ*XSS: the fully-open rate is badly underestimated."""
     return sat(P.GPN * xs, psr) - P.GPQ * qj
 
 
-@njit(cache=True)
+@jit
 def saturated_downstream(xs, qj, psr, P, vs):
     """Fig. 11 (Borello & Villero): P12 = sat(GPN*XS - GPQ*QJ, PSR)."""
     return sat(P.GPN * xs - P.GPQ * qj, psr)
 
 
-@njit(cache=True)
+@jit
 def linear_leakage(xs, qj, psr, P, vs):
     """Figs. 6-8: P12 = (GPN*XS - GPQ*QJ)/(1 + k), the leakage loop solved."""
     return (P.GPN * xs - P.GPQ * qj) / (1.0 + P.k)
 
 
-@njit(cache=True)
+@jit
 def model_a(xs, qj, psr, P, vs):
     """Fig. 9 (MODEL A): P12 = U/(1 + k), pressure gain scaled with PSR, no saturation."""
     return (psr * xs / P.XSS - P.GPQ * qj) / (1.0 + P.k)
 
 
-@njit(cache=True)
+@jit
 def model_b(xs, qj, psr, P, vs):
     """Fig. 10 (MODEL B): P12 = (sat(PSR*XS/XSS, PSR) - GPQ*QJ)/(1 + k)."""
     return (sat(psr * xs / P.XSS, psr) - P.GPQ * qj) / (1.0 + P.k)
 
 
-@njit(cache=True)
+@jit
 def model_c1(xs, qj, psr, P, vs):
     """Fig. 12 (MODEL C1): P12 = sat(U, PSR)/(1 + k); |P12| <= PSR/(1 + k) = PSR*."""
     return sat(psr * xs / P.XSS - P.GPQ * qj, psr) / (1.0 + P.k)
 
 
-@njit(cache=True)
+@jit
 def model_c2(xs, qj, psr, P, vs):
     """Fig. 13 (MODEL C2): P12 = sat(U/(1 + k), PSR); |P12| <= PSR for any CLk."""
     return sat((psr * xs / P.XSS - P.GPQ * qj) / (1.0 + P.k), psr)
 
 
-@njit(cache=True)
+@jit
 def model_c3(xs, qj, psr, P, vs):
     """Figs. 14-15, eqs. 2-7 (MODEL C3): P12 = sat(U, PSR)/(1 + k*XSS/max(|XS|, XSS)).
 
@@ -88,7 +88,7 @@ def model_c3(xs, qj, psr, P, vs):
     return sat(psr * xs / P.XSS - P.GPQ * qj, psr) / (1.0 + P.k * P.XSS / max(ax, P.XSS))
 
 
-@njit(cache=True)
+@jit
 def model_c4(xs, qj, psr, P, vs):
     """Figs. 16-17 (MODEL C4): the fixed point of P12 = sat(U - k*P12, PSR), found by the
     paper's pseudo-dynamic short run ``p <- p + alpha*(sat(U - k*p, PSR) - p)`` from the previous

@@ -1,0 +1,94 @@
+"""What the speed work (issue 13) must not change, and what makes it fast must hold: simulate()
+runs chunk by chunk with the same result as one pass, and its compiled loop is loaded from
+numba's disk cache by a second process instead of being compiled again."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from servovalve_twin.config import load_scenario
+from servovalve_twin.physics import simulate as sim_mod
+from servovalve_twin.runs import simulate
+
+# faults at times that are not multiples of any chunk or ECU period, every input kind
+SEAMS = dict(load_scenario('one_of_everything').to_dict(), faults=[
+    {'at': 0.10001, 'param': 'GAP', 'value': 0.5},
+    {'at': 0.1234, 'fault': 'leakage_growth', 'severity': 8.0},
+    {'at': 0.2, 'param': 'CorB', 'value': 1e-3}])
+
+
+@pytest.mark.parametrize('model', ['C4', 'HD'])
+@pytest.mark.parametrize('ecu_period', [None, 1e-3])
+def test_chunk_seams_do_not_show(monkeypatch, model, ecu_period):
+    """Cor held across a chunk boundary, the fault segment in force, the valve state (C4's warm
+    start, HD's ports) and the output row index must all carry over: runs cut into chunks of
+    997 steps (a prime: the seams fall everywhere) equal the run in one chunk, bit for bit. A
+    lost carry (Cor reset to 0, the first parameter row again) changes XJ at the next seam."""
+    monkeypatch.setattr(sim_mod, 'CHUNK_STEPS', 1 << 30)
+    whole = simulate(model, SEAMS, ecu_period=ecu_period)
+    monkeypatch.setattr(sim_mod, 'CHUNK_STEPS', 997)
+    cut = simulate(model, SEAMS, ecu_period=ecu_period)
+    assert {k: v for k, v in whole.info.items() if k != 'wall_s'} == {
+        k: v for k, v in cut.info.items() if k != 'wall_s'}
+    for col in whole.columns:
+        np.testing.assert_array_equal(cut[col], whole[col], err_msg=col)
+
+
+def test_fault_applies_from_the_first_step_at_or_after_its_time():
+    """A hand-computed case: an event at t = 0.10001 s applies from step ceil(0.10001/DT) =
+    10001 (DT = 1e-5); the ECU row at t = 0.1 s (step 10000) still uses the old GAP."""
+    from servovalve_twin.physics.params import DEFAULTS
+    from servovalve_twin.physics.valves import get_valve_model
+    scn = sim_mod.as_scenario(SEAMS)
+    _, start = sim_mod._fault_segments(get_valve_model('C2'), scn, DEFAULTS)
+    assert start.tolist() == [0, 10001, 12340, 20000]
+
+
+_PROBE = r'''
+import json, sys
+from servovalve_twin.runs import simulate
+from servovalve_twin.physics.plant import run_steps
+simulate(sys.argv[1], 'defaults')
+print(json.dumps(dict(hits=sum(run_steps.stats.cache_hits.values()),
+                      misses=sum(run_steps.stats.cache_misses.values()))))
+'''
+
+
+def test_a_second_process_loads_the_step_loop_from_the_disk_cache(tmp_path):
+    """With the valve model passed as a function object, numba compiled the loop again in
+    every process (1 s each); selected by its integer id, the loop is compiled once and the
+    next process loads it: no cache miss there, for any model."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'numba'))
+    runs = []
+    for model in ('C2', 'HD'):     # the first call compiles and writes the cache, the second
+        out = subprocess.run([sys.executable, '-c', _PROBE, model], env=env, check=True,
+                             capture_output=True, text=True).stdout
+        runs.append(json.loads(out))
+    assert runs[0]['misses'] == 1 or runs[0]['hits'] == 1
+    assert runs[1] == {'hits': 1, 'misses': 0}, runs
+
+
+def test_physics_stamp_changes_with_any_physics_source(tmp_path, monkeypatch):
+    """The cache stamp covers every file the loops inline, not only the loop's own: an edit
+    of a valve model alone changes it (numba's own stamp would miss it and load stale code)."""
+    import shutil
+    from servovalve_twin import jitcache
+    copy = tmp_path / 'physics'
+    shutil.copytree(jitcache._PHYSICS_DIR, copy, ignore=shutil.ignore_patterns('__pycache__'))
+    monkeypatch.setattr(jitcache, '_PHYSICS_DIR', str(copy))
+    jitcache.physics_stamp.cache_clear()
+    before = jitcache.physics_stamp()
+    (copy / '__pycache__').mkdir(exist_ok=True)
+    (copy / '__pycache__' / 'x.nbi').write_bytes(b'not source')
+    jitcache.physics_stamp.cache_clear()
+    assert jitcache.physics_stamp() == before          # caches themselves do not count
+    hd = copy / 'valves' / 'hd.py'
+    hd.write_text(hd.read_text() + '\n# edited\n')
+    jitcache.physics_stamp.cache_clear()
+    assert jitcache.physics_stamp() != before
+    monkeypatch.undo()
+    jitcache.physics_stamp.cache_clear()
