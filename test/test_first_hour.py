@@ -237,7 +237,6 @@ def test_nodes_refuse_misspelt_parameters_and_accept_integers_for_doubles(tmp_pa
 
 
 def test_integer_for_a_double_and_out_of_range_supply(ros_context):
-    from std_msgs.msg import Float64
     from rclpy.parameter import Parameter
     from servovalve_twin.nodes.plant import Plant
     node = Plant(context=ros_context, parameter_overrides=[Parameter('M', value=400)])
@@ -246,7 +245,7 @@ def test_integer_for_a_double_and_out_of_range_supply(ros_context):
         assert node.set_parameters([Parameter('CJ', value=2500)])[0].successful
         assert node.plant.params.CJ == 2500.0
         for bad in (-1.0, 1e300):
-            node.io.push('psr', Float64(data=bad))
+            node.io.push('psr', bad)
             assert node.io.latest['psr'] == node.params.PSRN        # dropped, not integrated
         # /p1, /p2 exist only while a model with port pressures is in force
         assert 'p1' not in node.pubs

@@ -2,6 +2,7 @@
 determinism, equality with simulate, the mid-run model switch."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -153,6 +154,8 @@ def test_valve_model_switch_through_the_parameter_service(ros_context):
     def on_tick(k, twin):
         if k == 0:
             twin.executor.add_node(client_node)
+            # a request sent before discovery has matched the service is lost: wait for it
+            assert client.wait_for_services(timeout_sec=10.0)
         if k == 50:
             futures.append(client.set_parameters([Parameter('valve_model', value='C9')]))
         if k == 60:
@@ -162,6 +165,10 @@ def test_valve_model_switch_through_the_parameter_service(ros_context):
             twin.run(on_tick=on_tick)
             assert twin.plant.plant.model.name == 'C3'
             assert twin.plant.get_parameter('valve_model').value == 'C3'
+            # the plant served both during the run; the client takes its responses now
+            deadline = time.monotonic() + 10.0
+            while not all(f.done() for f in futures) and time.monotonic() < deadline:
+                twin.executor.spin_once(timeout_sec=0.05)
         refused, accepted = (f.result().results[0] for f in futures)
         print('service refused C9:', refused.reason)
         assert not refused.successful and 'expected one of' in refused.reason
@@ -175,7 +182,7 @@ def test_nan_input_is_dropped_not_integrated(ros_context):
     with Twin('C2', SHORT, context=ros_context) as twin:
         msg = Float64()
         msg.data = math.nan
-        twin.plant._on_input('psr', msg)
+        twin.plant._on_input('psr', msg.data)
         assert twin.plant.io.latest['psr'] == 2.0e7 and not twin.plant.io.queues['psr']
 
 
@@ -223,3 +230,65 @@ def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_p
     assert levels[0] == 0 and 2 in levels
     assert first_error == pytest.approx(mon.first_alarm(), abs=1e-9)
     assert read_bag(tmp_path / 'm').topics['/monitor/residual_dxj'] == 1001
+
+
+def test_the_graph_still_sees_the_topics_the_nodes_hand_over_in_process(ros_context, tmp_path):
+    """In the twin the nodes pass their values to each other in process and publish a topic
+    on DDS only while something subscribes: a listener in another context (its own thread,
+    as another process would be) must still receive the joint state, byte for byte what the
+    bag holds at the same stamp, and /clock; with it subscribed, the run is unchanged."""
+    import threading
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from servovalve_twin.bag.reader import read_bag
+    from servovalve_twin.bag.anybag import open_any_bag
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = Node('listener', context=ctx)
+    qos = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+    got = {'joint': [], 'clock': []}
+    node.create_subscription(JointState, 'joint_states', got['joint'].append, qos, raw=True)
+    node.create_subscription(Clock, '/clock', got['clock'].append, qos)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    stop = threading.Event()
+    spinner = threading.Thread(target=lambda: [ex.spin_once(timeout_sec=0.01)
+                                               for _ in iter(stop.is_set, True)])
+    spinner.start()
+    try:
+        with Twin('C2', SHORT, context=ros_context, bag=tmp_path / 'b') as twin:
+            deadline = time.monotonic() + 10.0
+            while (twin.plant.pubs['joint_states'].get_subscription_count() < 1
+                   or twin.clock_pub.get_subscription_count() < len(twin.nodes) + 2):
+                assert time.monotonic() < deadline, 'the listener was never discovered'
+                time.sleep(0.01)
+            result = twin.run()
+        deadline = time.monotonic() + 10.0
+        while len(got['joint']) < result.ticks and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        stop.set()
+        spinner.join()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    recorded = {t: bytes(d) for _, t, d in open_any_bag(tmp_path / 'b').messages(
+        ['/joint_states'])}
+    print(len(got['joint']), 'joint states and', len(got['clock']), '/clock received of',
+          len(recorded), 'recorded')
+    assert len(got['joint']) == len(recorded) == result.ticks == 201
+    for data in got['joint']:
+        stamp = int.from_bytes(data[4:8], 'little') * 10**9 + int.from_bytes(data[8:12],
+                                                                             'little')
+        assert bytes(data) == recorded[stamp]
+    # an outside listener gets /clock every clock period (10 ms), not only at the turns
+    assert len(got['clock']) == 21
+    ref = simulate('C2', SHORT, ecu_period=1e-3)
+    run = read_bag(tmp_path / 'b')
+    for col in ref.columns:
+        np.testing.assert_array_equal(run.signals[col], ref[col], err_msg=col)

@@ -55,6 +55,11 @@ def encode_float64(msg) -> bytes:
     return _HEADER + _F64.pack(msg.data)
 
 
+def encode_float64_value(value: float) -> bytes:
+    """:func:`encode_float64` of a message holding ``value``."""
+    return _HEADER + _F64.pack(value)
+
+
 def encode_clock(msg) -> bytes:
     return _HEADER + struct.pack('<iI', msg.clock.sec, msg.clock.nanosec)
 
@@ -72,6 +77,14 @@ def encode_joint_state(msg) -> bytes:
         return _JACK.pack(_HEADER, st.sec, st.nanosec, 1, 1, 5, _JACK_NAME, 1, msg.position[0],
                           1, msg.velocity[0], 1, msg.effort[0])
     return encode_joint_state_general(msg)
+
+
+def encode_jack_state(stamp_ns: int, xj: float, dxj: float, force: float) -> bytes:
+    """:func:`encode_joint_state` of :func:`~..nodes.common.joint_state`'s message, without
+    building it (the twin's recorder, when nothing on DDS subscribes to the joint state)."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return _JACK.pack(_HEADER, sec, nanosec, 1, 1, 5, _JACK_NAME, 1, float(xj), 1, float(dxj),
+                      1, float(force))
 
 
 def encode_joint_state_general(msg) -> bytes:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Mapping
 
-from .cdr import ENCODERS
+from .cdr import ENCODERS, encode_float64_value
 from .writer import BagWriter
 
 
@@ -56,6 +56,27 @@ class Recorder:
         elif self.writer is not None:
             name = topic if topic[0] == '/' else '/' + topic
             self.writer.write(name, self.encoders[name](msg), self.now_ns)
+        else:
+            self._other += 1
+
+    def record_value(self, topic: str, value: float) -> None:
+        """:meth:`record` for a Float64 topic's value (the nodes' ``tap_value``): no message."""
+        if self.sinks:
+            name = '/' + topic
+            data = encode_float64_value(value)
+            for sink in self.sinks:
+                sink(name, data, self.now_ns)
+        times, values = self._pending[topic]
+        times.append(self.now_ns)
+        values.append(value)
+
+    def record_bytes(self, topic: str, data: bytes) -> None:
+        """:meth:`record` of a message already encoded (a non-Float64 topic)."""
+        name = '/' + topic
+        for sink in self.sinks:
+            sink(name, data, self.now_ns)
+        if self.writer is not None:
+            self.writer.write(name, data, self.now_ns)
         else:
             self._other += 1
 

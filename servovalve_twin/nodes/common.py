@@ -60,11 +60,15 @@ class TwinNode(Node):
       validated as a whole (:meth:`check_parameters`, a refusal keeps the old values) and then
       applied (:meth:`apply_parameters`), so ``self.params`` always holds valid values;
     - **inputs**: Float64 subscriptions into a :class:`LockstepInputs` (:meth:`start_inputs`);
-      each arrival calls :meth:`try_tick`, which runs :meth:`step` once a tick is complete;
+      each arrival calls :meth:`try_tick`, which runs :meth:`step` once a tick is complete. In
+      the twin the inputs come from the other in-process nodes through a :class:`LocalBus`
+      instead of a DDS round trip;
     - **drive**: in the lockstep the orchestrator opens the ticks; alone, a timer at
       ``control_period`` calls :meth:`on_timer` (:meth:`start`, called last by every node);
     - **outputs**: publications go through :meth:`emit`, so that the twin's recorder can take
-      every message at the moment it is published (``tap``), without a subscription per topic.
+      every message at the moment it is published (``tap``), without a subscription per topic;
+      in the twin a topic goes out on DDS only while something subscribes to it
+      (:meth:`refresh_subscribers`).
     """
 
     subsystem: str | None = None
@@ -76,12 +80,18 @@ class TwinNode(Node):
         return names_read_by(cls.subsystem) if cls.subsystem else ()
 
     def __init__(self, name: str, *, lockstep: bool = False, params: EhaParams | None = None,
-                 **kwargs):
+                 bus: 'LocalBus | None' = None, **kwargs):
         super().__init__(name, **kwargs)
         self.lockstep = lockstep
+        self.bus = bus
         self.pubs: dict[str, Any] = {}
+        #: topic -> something subscribes on DDS (refreshed by the twin; publish when unknown)
+        self._wanted: dict[str, bool] = {}
         self._f64: dict[str, Float64] = {}
         self.tap: Callable[[str, Any], None] | None = None
+        #: the recorder's faster taps (twin): a Float64 value, an encoded message
+        self.tap_value: Callable[[str, float], None] | None = None
+        self.tap_bytes: Callable[[str, bytes], None] | None = None
         self.io: LockstepInputs | None = None
         self.done = -1                     # ticks completed (lockstep)
         self.declare_parameter('control_period', 0.001, ParameterDescriptor(
@@ -132,10 +142,14 @@ class TwinNode(Node):
         messages arrive, alone)."""
         self.io = LockstepInputs(self, defaults, lockstep=self.lockstep, ticked=ticked)
         for name in defaults:
-            self.create_subscription(Float64, name, lambda m, n=name: self._on_input(n, m), QOS)
+            if self.bus is not None:
+                self.bus.subscribe(name, lambda v, n=name: self._on_input(n, v))
+            else:
+                self.create_subscription(Float64, name,
+                                         lambda m, n=name: self._on_input(n, m.data), QOS)
 
-    def _on_input(self, name: str, msg: Float64) -> None:
-        self.io.push(name, msg)
+    def _on_input(self, name: str, value: float) -> None:
+        self.io.push(name, value)
         self.try_tick()
 
     def begin_tick(self, t_ns: int, n_sub: int) -> None:
@@ -165,10 +179,6 @@ class TwinNode(Node):
     def on_timer(self) -> None:
         raise NotImplementedError
 
-    def pending(self) -> int:
-        """Inputs queued beyond the tick (a foreign publisher on the lockstep's topics)."""
-        return self.io.pending() if self.io is not None else 0
-
     # -- outputs ----------------------------------------------------------------------------
     def add_publishers(self, topics: Iterable[str], table: dict | None = None) -> None:
         """Publishers for ``topics``, typed from ``table`` (default :data:`TOPICS`)."""
@@ -179,16 +189,48 @@ class TwinNode(Node):
     def emit(self, topic: str, msg: Any) -> None:
         if self.tap is not None:
             self.tap(topic, msg)
+        if self.bus is not None:
+            if topic in self.bus.routes:
+                self.bus.post(topic, msg.data)
+            if not self.wanted(topic):
+                return          # nobody on DDS: serializing it would cost ~3 us for nothing
         self.pubs[topic].publish(msg)
+
+    def wanted(self, topic: str) -> bool:
+        """Whether ``topic`` goes out on DDS: always alone; in the twin while something on the
+        graph subscribes (as of the last :meth:`refresh_subscribers`)."""
+        return self.bus is None or self._wanted.get(topic, True)
+
+    def refresh_subscribers(self) -> None:
+        """Note which topics have DDS subscribers (the twin calls this every /clock period): a
+        viewer that subscribes mid-run receives the topic from the next refresh on."""
+        for topic, pub in self.pubs.items():
+            self._wanted[topic] = pub.get_subscription_count() > 0
 
     def emit_value(self, topic: str, value: float) -> None:
         """Publish a Float64; one message object per topic is reused (publishing serializes it
-        at once), which saves building a message per tick on the hot path."""
+        at once), which saves building a message per tick on the hot path. In the twin the
+        value goes to the recorder and the in-process subscribers as a float, and a message
+        is filled only when something on DDS subscribes."""
+        value = float(value)
+        if self.bus is not None:
+            if self.tap_value is not None:
+                self.tap_value(topic, value)
+            if topic in self.bus.routes:
+                self.bus.post(topic, value)
+            if not self.wanted(topic):
+                return
+            self._message(topic, value)
+            self.pubs[topic].publish(self._f64[topic])
+            return
+        self.emit(topic, self._message(topic, value))
+
+    def _message(self, topic: str, value: float) -> Float64:
         msg = self._f64.get(topic)
         if msg is None:
             msg = self._f64[topic] = Float64()
-        msg.data = float(value)
-        self.emit(topic, msg)
+        msg.data = value
+        return msg
 
 
 #: physical bounds of an input topic: a value outside is dropped like a NaN (a 1e300 or negative
@@ -212,8 +254,8 @@ class LockstepInputs:
         self.queues: dict[str, deque] = {n: deque() for n in defaults}
         self.ticks: deque[tuple[int, int]] = deque()
 
-    def push(self, name: str, msg: Float64) -> None:
-        v = finite_or_none(msg.data, name, self.node)
+    def push(self, name: str, value: float) -> None:
+        v = finite_or_none(value, name, self.node)
         if v is None:
             return
         lo, hi = INPUT_LIMITS.get(name, (-math.inf, math.inf))
@@ -235,10 +277,36 @@ class LockstepInputs:
             return tick, {n: q.popleft() for n, q in self.queues.items()}
         return None
 
-    def pending(self) -> int:
-        """Values queued beyond the tick: more than the lockstep sends means a foreign
-        publisher on the same topics."""
-        return max(len(q) for q in self.queues.values())
+
+class LocalBus:
+    """The twin's in-process delivery of Float64 values between its nodes.
+
+    Every lockstep input would otherwise make a DDS round trip inside one process (publish,
+    serialize, deliver, executor wake-up: ~12 us each, ~83 us per tick, bench/README.md). A
+    value posted here is queued for each in-process subscriber and delivered by :meth:`drain`
+    in posting order, one callback at a time -- the order the executor delivered in, so each
+    node still consumes each input once and in order, and the run and its bag are unchanged.
+    The topics are still published on DDS for the rest of the graph whenever something there
+    subscribes (:meth:`TwinNode.emit`).
+    """
+
+    def __init__(self):
+        self.routes: dict[str, list[Callable[[float], None]]] = {}
+        self.queue: deque = deque()
+
+    def subscribe(self, topic: str, callback: Callable[[float], None]) -> None:
+        self.routes.setdefault(topic, []).append(callback)
+
+    def post(self, topic: str, value: float) -> None:
+        for callback in self.routes.get(topic, ()):
+            self.queue.append((callback, value))
+
+    def drain(self) -> None:
+        """Deliver until nothing is queued (a delivery may post more: Cor, then P12...)."""
+        queue = self.queue
+        while queue:
+            callback, value = queue.popleft()
+            callback(value)
 
 
 def f64(value: float) -> Float64:

@@ -7,6 +7,7 @@ from typing import Any, Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor
 
+from ..bag.cdr import encode_jack_state
 from ..errors import ModelError
 from ..physics.params import EhaParams
 from ..physics.simulate import EhaPlant, steps_per
@@ -105,7 +106,12 @@ class Plant(TwinNode):
         if self.plant.model.has_ports:
             self.emit_value('p1', p1)
             self.emit_value('p2', p2)
-        self._joint = joint_state(t_ns, xj, dxj, self.plant.params.AJ * p12, self._joint)
+        force = self.plant.params.AJ * p12
+        if self.tap_bytes is not None and not self.wanted('joint_states'):
+            # the twin records it and nothing on DDS subscribes: encode it, build no message
+            self.tap_bytes('joint_states', encode_jack_state(t_ns, xj, dxj, force))
+            return
+        self._joint = joint_state(t_ns, xj, dxj, force, self._joint)
         self.emit('joint_states', self._joint)
 
     def on_timer(self) -> None:
