@@ -381,7 +381,7 @@ def _parse_vary(items: list[str]) -> dict[str, float]:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     import time
-    from .prognostics.sweep import make_cases, run_cases, write_dataset
+    from .prognostics.sweep import iter_results, make_cases, write_dataset
     grid, ranges = _parse_faults(args.fault)
     if ranges and not args.draws:
         raise TwinError('a fault range NAME:LO~HI needs --draws N')
@@ -399,11 +399,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                        base=_overrides(args), algorithm=args.algorithm,
                        algorithm_params=_algorithm_params(args))
     t0 = time.perf_counter()
-    results = run_cases(cases, workers=args.workers, scheduler=args.scheduler)
+    # streamed: each run's row (and traces) goes to the dataset as it arrives
+    summary = write_dataset(Path(args.out), iter_results(
+        cases, workers=args.workers, scheduler=args.scheduler, traces=args.traces))
     wall = time.perf_counter() - t0
-    summary = write_dataset(Path(args.out), results)
+    files = 'dataset.csv, dataset.parquet, ' + ('traces.npz, ' if args.traces else '')
     print(f'{len(cases)} runs in {wall:.1f} s ({len(cases) / wall:.1f} runs/s) -> {args.out}/'
-          '{dataset.csv, dataset.parquet, traces.npz, summary.json, signature.png}')
+          f'{{{files}summary.json, signature.png}}')
     print(f'false alarms on nominal runs: {summary["false_alarms"]}/{summary["nominal_runs"]}')
     for fault, rows in summary['faults'].items():
         for r in rows:
@@ -534,8 +536,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--workers', type=int, help='local processes (default: one per core)')
     p.add_argument('--scheduler', metavar='ADDRESS', help='run on this Dask scheduler')
     _add_param_options(p)
+    p.add_argument('--traces', action='store_true',
+                   help='also write every run\'s residuals, indicators and level per 1 ms '
+                        '(traces.npz, ~90 kB per run)')
     p.add_argument('--out', required=True, metavar='DIR',
-                   help='dataset.csv and .parquet, traces.npz, summary.json, signature.png')
+                   help='dataset.csv and .parquet, summary.json, signature.png (and '
+                        'traces.npz with --traces)')
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser('play', help='put a rosbag2 bag (MCAP or sqlite3, any version) back on '

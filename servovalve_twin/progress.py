@@ -15,8 +15,8 @@ def enabled() -> bool:
 
 
 def progress(iterable: Iterable[Any] | None = None, *, total: int | None = None,
-             desc: str = '', unit: str = 'it'):
+             desc: str = '', unit: str = 'it', initial: int = 0):
     """A tqdm bar over ``iterable`` (or one to ``update()`` by hand), disabled off a terminal."""
     from tqdm import tqdm
-    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=not enabled(),
+    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=not enabled(), initial=initial,
                 file=sys.stderr, leave=False, dynamic_ncols=True)

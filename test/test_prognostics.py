@@ -217,3 +217,25 @@ def test_monitor_knows_the_design_not_each_units_draw():
     assert drawn.params['M'] != DEFAULTS.M and drawn.design == {}
     assert run_case(design)['row']['peak_rms_xj'] == 0.0
     assert run_case(drawn)['row']['peak_rms_xj'] > 1e-5
+
+
+def test_sweep_streams_rows_without_traces_unless_asked(tmp_path):
+    """Without traces a run returns its row only, the same row as with them, from the pool as
+    from one process; the dataset written from the stream then has no traces.npz. With
+    traces, the streamed traces.npz holds every run's arrays, equal to the results'."""
+    from servovalve_twin.prognostics.sweep import iter_results
+    cases = make_cases(faults={'leakage_growth': [20.0]}, repeats=3, nominal_runs=1,
+                       vary={'M': 0.1}, seed=5)
+    full = run_cases(cases, workers=1)
+    light = list(iter_results(cases, workers=2, traces=False))
+    assert same_rows(light, full) and all(r['traces'] == {} for r in light)
+    write_dataset(tmp_path / 'rows', iter(light))
+    assert not (tmp_path / 'rows' / 'traces.npz').exists()
+    assert (tmp_path / 'rows' / 'dataset.csv').read_text().count('\n') == 5
+    write_dataset(tmp_path / 'full', iter(full))
+    with np.load(tmp_path / 'full' / 'traces.npz') as npz:
+        assert sorted(npz.files) == sorted(f'run{r["row"]["run_id"]}_{k}' for r in full
+                                           for k in r['traces'])
+        for r in full:
+            for k, v in r['traces'].items():
+                np.testing.assert_array_equal(npz[f'run{r["row"]["run_id"]}_{k}'], v)

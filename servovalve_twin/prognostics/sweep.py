@@ -3,9 +3,14 @@ a monitor model, in parallel, into a labelled dataset for prognostics work.
 
 One *case* = plant model + monitor model + scenario + parameter draw + (fault, severity, onset).
 Each run yields one dataset row (parameters, fault label, severity, summary features, alarm,
-detection delay) and its traces (residuals, indicators, health level per 1 ms). Cases run on a
-local process pool (default: one worker per core) or on an existing Dask cluster
-(``scheduler='tcp://host:8786'``); the physics is the same ``simulate`` either way.
+detection delay) and, when asked for, its traces (residuals, indicators, health level per
+1 ms). Cases run on a local process pool (default: one worker per core) or on an existing Dask
+cluster (``scheduler='tcp://host:8786'``); the physics is the same ``simulate`` either way.
+
+Speed (bench/bench_sweep.py): the parent loads the compiled physics once before the pool
+forks, so no worker compiles; runs travel back as rows (~2 kB) unless traces are asked for
+(~90 kB each); and :func:`write_dataset` streams the traces to ``traces.npz`` as they arrive,
+so the parent never holds them all.
 """
 
 from __future__ import annotations
@@ -13,10 +18,12 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import multiprocessing
 import os
+import zipfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -50,8 +57,9 @@ class Case:
     algorithm_params: Mapping[str, Any] | None = None      # of the monitor; its parameters
 
 
-def run_case(case: Case) -> dict[str, Any]:
-    """Simulate the plant (fault from ``onset``) and the monitor; features and traces."""
+def run_case(case: Case, traces: bool = True) -> dict[str, Any]:
+    """Simulate the plant (fault from ``onset``) and the monitor: ``{'row': features, 'traces':
+    arrays}`` (``traces`` empty unless asked for)."""
     scn = load_scenario(case.scenario)
     raw = scn.to_dict()
     raw.pop('params', None)          # folded into ``nominal`` below, with this draw on top
@@ -62,7 +70,7 @@ def run_case(case: Case) -> dict[str, Any]:
     design = make_params(dict(scn.params) | dict(case.design))
     run = simulate(case.plant_model, raw, params=actual, ecu_period=case.ecu_period)
     if case.algorithm is not None:
-        features, traces, alarm, warn = _algorithm_case(case, run, design)
+        features, trace_arrays, alarm, warn = _algorithm_case(case, run, design)
     else:
         config = (HealthConfig(**case.thresholds) if case.thresholds
                   else HealthConfig.for_model(case.monitor_model))
@@ -70,7 +78,7 @@ def run_case(case: Case) -> dict[str, Any]:
         alarm = mon.first_alarm(ERROR)
         warn = mon.first_alarm(WARN)
         features = mon.features()
-        traces = dict(t=mon.t, level=mon.level.astype(np.int8),
+        trace_arrays = dict(t=mon.t, level=mon.level.astype(np.int8),
                       **{f'res_{k}': v for k, v in mon.residuals.items()},
                       **{f'ind_{k}': v for k, v in mon.indicators.items()})
     before = alarm is not None and alarm < case.onset
@@ -86,7 +94,7 @@ def run_case(case: Case) -> dict[str, Any]:
         alarm_before_onset=int(bool(before)))
     row.update({f'param_{k}': float(v) for k, v in case.params.items()})
     row.update(features)
-    return dict(row=row, traces=traces)
+    return dict(row=row, traces=trace_arrays if traces else {})
 
 
 def _algorithm_case(case: Case, run, design):
@@ -164,9 +172,18 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
 
 
 def run_cases(cases: Sequence[Case], *, workers: int | None = None,
-              scheduler: str | None = None) -> list[dict[str, Any]]:
-    """Run every case: on a Dask cluster when ``scheduler`` is its address, else on a local
-    process pool of ``workers`` (default: the number of cores). Results keep case order."""
+              scheduler: str | None = None, traces: bool = True) -> list[dict[str, Any]]:
+    """Every case's result, in case order (:func:`iter_results` collected)."""
+    return list(iter_results(cases, workers=workers, scheduler=scheduler, traces=traces))
+
+
+def iter_results(cases: Sequence[Case], *, workers: int | None = None,
+                 scheduler: str | None = None, traces: bool = True
+                 ) -> Iterator[dict[str, Any]]:
+    """Run every case and yield the results in case order as they come: on a Dask cluster
+    when ``scheduler`` is its address, else on a local process pool of ``workers`` (default:
+    the number of cores). ``traces`` = False returns rows only (what a dataset needs)."""
+    cases = list(cases)
     if scheduler:
         try:
             from dask.distributed import Client
@@ -178,29 +195,52 @@ def run_cases(cases: Sequence[Case], *, workers: int | None = None,
         except (OSError, TimeoutError) as exc:
             raise TwinError(f'cannot reach the Dask scheduler at {scheduler}: {exc}') from None
         try:
-            futures = client.map(run_case, list(cases), pure=False)
-            from dask.distributed import as_completed
-            for _ in progress(as_completed(futures), total=len(futures), desc='sweep',
-                              unit='run'):
-                pass
-            return client.gather(futures)
+            futures = client.map(run_case, cases, [traces] * len(cases), pure=False)
+            for f in progress(futures, total=len(futures), desc='sweep', unit='run'):
+                yield f.result()
         finally:
             client.close()
+        return
     workers = workers or os.cpu_count() or 1
-    if workers == 1 or len(cases) == 1:
-        return [run_case(c) for c in progress(cases, desc='sweep', unit='run')]
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        return list(progress(pool.map(run_case, cases,
-                                      chunksize=max(1, len(cases) // (4 * workers))),
-                             total=len(cases), desc='sweep', unit='run'))
+    if workers == 1 or len(cases) <= 1:
+        for c in progress(cases, desc='sweep', unit='run'):
+            yield run_case(c, traces)
+        return
+    # the first case runs here: it loads (or compiles) the physics of this plant and monitor
+    # in the parent, which the forked workers then share instead of each loading its own
+    yield run_case(cases[0], traces)
+    rest = cases[1:]
+    ctx = multiprocessing.get_context('fork') if 'fork' in \
+        multiprocessing.get_all_start_methods() else None
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        yield from progress(pool.map(run_case, rest, [traces] * len(rest),
+                                     chunksize=max(1, len(rest) // (8 * workers))),
+                            total=len(cases), initial=1, desc='sweep', unit='run')
 
 
-def write_dataset(out: Path, results: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+def write_dataset(out: Path, results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     """``dataset.csv`` and ``dataset.parquet`` (one row per run), ``traces.npz`` (per-run arrays,
-    keys ``run<id>_<name>``), ``summary.json`` (detection statistics per fault and severity) and
-    ``signature.png`` (peak indicators against severity, per fault)."""
+    keys ``run<id>_<name>``; only when the results carry traces), ``summary.json`` (detection
+    statistics per fault and severity) and ``signature.png`` (peak indicators against
+    severity, per fault). ``results`` may be a stream (:func:`iter_results`): each run's traces
+    are written to ``traces.npz`` as it arrives and dropped, only the rows are kept."""
     out.mkdir(parents=True, exist_ok=True)
-    rows = [r['row'] for r in results]
+    rows: list[dict[str, Any]] = []
+    npz = None
+    try:
+        for r in results:
+            rows.append(dict(r['row']))
+            if r.get('traces'):
+                if npz is None:
+                    npz = zipfile.ZipFile(out / 'traces.npz', 'w', zipfile.ZIP_DEFLATED)
+                for k, v in r['traces'].items():
+                    # the .npy members np.savez_compressed writes, one at a time
+                    with npz.open(f'run{r["row"]["run_id"]}_{k}.npy', 'w',
+                                  force_zip64=True) as fh:
+                        np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
+    finally:
+        if npz is not None:
+            npz.close()
     cols: list[str] = []
     for r in rows:
         cols += [k for k in r if k not in cols]
@@ -214,8 +254,6 @@ def write_dataset(out: Path, results: Sequence[Mapping[str, Any]]) -> dict[str, 
     import pyarrow.parquet as pq
     pq.write_table(pa.table({c: [r.get(c) for r in rows] for c in cols}),
                    str(out / 'dataset.parquet'))
-    arrays = {f'run{r["row"]["run_id"]}_{k}': v for r in results for k, v in r['traces'].items()}
-    np.savez_compressed(out / 'traces.npz', **arrays)
     summary = summarize(rows)
     (out / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n', encoding='utf-8')
     plot_signature(rows, out / 'signature.png')
