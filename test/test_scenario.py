@@ -74,3 +74,15 @@ def test_bad_scenarios_rejected(raw, fragment):
 def test_unknown_scenario_name():
     with pytest.raises(ScenarioError, match="unknown scenario 'papr'"):
         load_scenario('papr')
+
+
+def test_builtin_scenario_parsed_once_but_never_shared():
+    """Built-in scenarios are parsed once per process (YAML was most of a short simulate());
+    each load still gets its own data: a caller changing its copy changes no later load."""
+    from servovalve_twin.config import load_scenario
+    first = load_scenario('paper')
+    first.params['M'] = 1.0
+    first.windows.clear()
+    again = load_scenario('paper')
+    assert 'M' not in again.params and again.windows
+    assert again == load_scenario('paper')

@@ -95,30 +95,33 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
 _COST_CHILD = """
 import sys
 from servovalve_twin.runs import simulate
-simulate(sys.argv[1])
-print(min(simulate(sys.argv[1]).info['wall_s'] for _ in range(7)) / 100000 * 1e6)
+for model in sys.argv[1:]:
+    simulate(model)
+    print(min(simulate(model).info['wall_s'] for _ in range(7)) / 100000 * 1e6)
 """
 
 
-def step_cost_us(model: str, processes: int = 3) -> float:
-    """Physics cost per plant step [us] of the paper scenario: the median, over ``processes``
-    fresh processes, of the fastest of 7 compiled runs. Fresh processes because on this
-    machine a compiled loop lands in a fast or a slow mode (about 2x) per process."""
+def step_costs_us(models, processes: int = 3) -> dict[str, float]:
+    """Physics cost per plant step [us] of the paper scenario, per model: the median, over
+    ``processes`` fresh processes, of the fastest of 7 runs. Fresh processes because on this
+    machine a compiled loop lands in a fast or a slow mode (about 2x) per process; every
+    process measures every model (one start-up per process, not per model)."""
     import statistics
     import subprocess
     import sys
-    costs = [float(subprocess.run([sys.executable, '-c', _COST_CHILD, model], check=True,
-                                  capture_output=True, text=True).stdout.split()[-1])
-             for _ in range(processes)]
-    return statistics.median(costs)
+    models = list(models)
+    costs = [[float(x) for x in subprocess.run(
+        [sys.executable, '-c', _COST_CHILD, *models], check=True, capture_output=True,
+        text=True).stdout.split()[-len(models):]]
+        for _ in progress(range(processes), desc='report: step cost', unit='process')]
+    return {m: statistics.median(c[i] for c in costs) for i, m in enumerate(models)}
 
 
 def beyond_report(out_dir: Path) -> str:
     """Issue 6: SQ against C1, C2, C3 on three scenarios, errors against HD and step cost."""
     from ..config import load_scenario
     out_dir.mkdir(parents=True, exist_ok=True)
-    cost = {m: step_cost_us(m) for m in progress(BEYOND_MODELS, desc='report: step cost',
-                                                  unit='model')}
+    cost = step_costs_us(BEYOND_MODELS)
     lines = ['| scenario | model | XJ rms / max [mm] | DXJ rms / max [mm/s] | P12 rms / max [MPa] '
              '| window | XJ rms / max [mm] | DXJ rms / max [mm/s] | P12 rms / max [MPa] | '
              'step cost [us] |', '|---|---|---|---|---|---|---|---|---|---|']
