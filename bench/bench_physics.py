@@ -1,28 +1,76 @@
 """Physics speed: the 1.0 s paper scenario at DT = 1e-5 s (100 000 plant steps), ROS-free,
-one core. Per model: one-off compile cost (first call in a fresh process, numba JIT), then the
-median wall time of --repeat runs, us per plant step and the real-time factor.
+one core, and what a user waits for around it.
 
-    .venv/bin/python bench/bench_physics.py [--repeat 7] [--markdown]
+1. Per model, in a fresh process: the first call (numba loading the compiled loop from its
+   disk cache), the whole ``simulate(model, 'paper')`` call (median of --repeat), the compiled
+   loop alone on prebuilt inputs, us per plant step and the real-time factor of the whole call.
+2. Start-up of one CLI process, interleaved rounds, medians: ``python -c "import numpy,
+   numba"`` (the floor of any numba program), the same plus one call of a trivial cached
+   numba function (numba's own first-call set-up), ``servovalve-twin simulate --valve-model C2``
+   with a warm cache, and the first-ever call (an empty numba cache: everything compiles).
+3. SQ's step cost over C2's, interleaved in one process (small ratios need one run).
+
+    .venv/bin/python bench/bench_physics.py [--repeat 9] [--rounds 7]
 """
 
 import argparse
+import json
+import os
 import platform
 import statistics
 import subprocess
 import sys
+import tempfile
+import time
 
 CHILD = '''
 import sys, time, json
+import numpy as np
 t = time.perf_counter()
 from servovalve_twin.runs import simulate
+from servovalve_twin.config import load_scenario
+from servovalve_twin.physics import simulate as S
+from servovalve_twin.physics.plant import run_steps
+from servovalve_twin.physics.servovalve import S_SIZE
+from servovalve_twin.physics.valves import get_valve_model
 imp = time.perf_counter() - t
 model, repeat = sys.argv[1], int(sys.argv[2])
 t = time.perf_counter(); r = simulate(model, 'paper'); first = time.perf_counter() - t
 walls = []
 for _ in range(repeat):
-    r = simulate(model, 'paper')
-    walls.append(r.info['wall_s'])
-print(json.dumps(dict(first=first, walls=walls, steps=r.info['steps'], imp=imp)))
+    walls.append(simulate(model, 'paper').info['wall_s'])
+# the compiled loop alone: inputs, state and output built beforehand
+scn = load_scenario('paper'); p = S.effective_params(scn); m = get_valve_model(model)
+n = scn.duration_ns // p.dt_ns
+com, fr, psr = scn.inputs(np.arange(n + 1, dtype=np.int64) * p.dt_ns)
+kern, start = S._fault_segments(m, scn, p)
+loops = []
+for _ in range(repeat):
+    out = np.full((n // 100 + 1, 12), np.nan); s = np.zeros(S_SIZE); vs = m.initial_state(p)
+    t = time.perf_counter()
+    run_steps(m.id, s, vs, kern, start, com, fr, psr, 0, n, 0, 100, np.zeros(2), out, 1e-3)
+    loops.append(time.perf_counter() - t)
+print(json.dumps(dict(first=first, walls=walls, loops=loops, steps=r.info['steps'], imp=imp)))
+'''
+
+TRIVIAL = '''
+from numba import njit
+@njit(cache=True)
+def f(x):
+    return x + 1.0
+f(1.0)
+'''
+
+RATIO = '''
+import sys, time, json
+from servovalve_twin.runs import simulate
+simulate('C2'); simulate('SQ')
+ratios = []
+for _ in range(int(sys.argv[1])):
+    c2 = min(simulate('C2').info['wall_s'] for _ in range(3))
+    sq = min(simulate('SQ').info['wall_s'] for _ in range(3))
+    ratios.append(sq / c2)
+print(json.dumps(ratios))
 '''
 
 
@@ -36,30 +84,72 @@ def machine() -> str:
                     break
     except OSError:
         pass
-    import os
     return f'{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}'
 
 
+def _wall(cmd, env=None) -> float:
+    t = time.perf_counter()
+    subprocess.run(cmd, check=True, capture_output=True, env=env)
+    return time.perf_counter() - t
+
+
+def startup(rounds: int) -> None:
+    exe = os.path.join(os.path.dirname(sys.executable), 'servovalve-twin')
+    tmp = tempfile.mkdtemp()
+    trivial = os.path.join(tmp, 'trivial.py')
+    with open(trivial, 'w') as fh:
+        fh.write(TRIVIAL)
+    cases = {
+        'python -c "import numpy, numba"': lambda i: _wall([sys.executable, '-c',
+                                                            'import numpy, numba']),
+        'a trivial cached numba function, first call': lambda i: _wall([sys.executable,
+                                                                         trivial]),
+        'servovalve-twin simulate --valve-model C2 (warm cache)': lambda i: _wall(
+            [exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, f'w{i}.csv')]),
+        'the same, first ever (empty numba cache: compiles)': lambda i: _wall(
+            [exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, f'f{i}.csv')],
+            env=dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, f'cache{i}'))),
+    }
+    _wall([exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, 'x.csv')])
+    times = {k: [] for k in cases}
+    for i in range(rounds):                       # interleaved: drift hits every line alike
+        for k, fn in cases.items():
+            times[k].append(fn(i))
+    floor = statistics.median(times['python -c "import numpy, numba"'])
+    print(f'\nStart-up of one process, median of {rounds} interleaved rounds:\n')
+    print('| process | wall [s] | / import floor |')
+    print('|---|---|---|')
+    for k, v in times.items():
+        med = statistics.median(v)
+        print(f'| {k} | {med:.2f} | {med / floor:.2f} |')
+
+
 def main() -> None:
-    import json
     ap = argparse.ArgumentParser()
-    ap.add_argument('--repeat', type=int, default=7)
-    ap.add_argument('--markdown', action='store_true')
+    ap.add_argument('--repeat', type=int, default=9)
+    ap.add_argument('--rounds', type=int, default=7)
     args = ap.parse_args()
     from servovalve_twin.physics.valves import VALVE_MODEL_NAMES
-    rows = []
+    print(f'machine: {machine()}; 1.0 s paper scenario, DT = 1e-5 s, median of {args.repeat} '
+          'runs per model in a fresh process')
+    print('| model | first call [s] | simulate() [ms] | compiled loop [ms] | whole / loop | '
+          'us per plant step | real-time factor |')
+    print('|---|---|---|---|---|---|---|')
     for model in VALVE_MODEL_NAMES:
         out = subprocess.run([sys.executable, '-c', CHILD, model, str(args.repeat)],
                              capture_output=True, text=True, check=True).stdout
         d = json.loads(out.strip().splitlines()[-1])
         med = statistics.median(d['walls'])
-        rows.append((model, d['first'] - med, med, med / d['steps'] * 1e6, 1.0 / med))
-    print(f'machine: {machine()}; median of {args.repeat} runs, 1.0 s paper scenario, '
-          'DT = 1e-5 s')
-    print('| model | compile, one-off [s] | run [ms] | us per plant step | real-time factor |')
-    print('|---|---|---|---|---|')
-    for model, comp, med, us, rtf in rows:
-        print(f'| {model} | {comp:.2f} | {med * 1e3:.2f} | {us:.3f} | {rtf:.0f} |')
+        loop = statistics.median(d['loops'])
+        print(f'| {model} | {d["first"]:.2f} | {med * 1e3:.2f} | {loop * 1e3:.2f} | '
+              f'{med / loop:.2f} | {med / d["steps"] * 1e6:.3f} | {1.0 / med:.0f} |')
+    startup(args.rounds)
+    out = subprocess.run([sys.executable, '-c', RATIO, str(args.repeat)], capture_output=True,
+                         text=True, check=True).stdout
+    ratios = json.loads(out.strip().splitlines()[-1])
+    print(f'\nSQ / C2 whole-call cost, interleaved in one process: median '
+          f'{statistics.median(ratios):.2f} (min {min(ratios):.2f}, max {max(ratios):.2f}, '
+          f'{len(ratios)} pairs)')
 
 
 if __name__ == '__main__':

@@ -39,7 +39,11 @@ SIGNAL_UNITS = dict(t='s', com='m', fr='N', psr='Pa', cor='A', xs='m', xj='m', d
 def effective_params(scenario: Scenario, overrides: Mapping[str, Any] | None = None,
                      base: EhaParams | None = None) -> EhaParams:
     """Defaults, then the scenario's ``params``, then the user's overrides (later wins)."""
-    return (base or DEFAULTS).replace(**dict(scenario.params)).replace(**dict(overrides or {}))
+    p = base or DEFAULTS
+    for changes in (scenario.params, overrides):
+        if changes:                     # each replace() re-validates every field (~0.2 ms)
+            p = p.replace(**dict(changes))
+    return p
 
 
 def steps_per(period_s: float, params: EhaParams, what: str) -> int:
