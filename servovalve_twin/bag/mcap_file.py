@@ -17,6 +17,7 @@ any chunk, so that a file cut short still names every channel (``reindex`` relie
 
 from __future__ import annotations
 
+import functools
 import struct
 import zlib
 from typing import BinaryIO, Dict, List
@@ -31,6 +32,14 @@ MAGIC = struct.pack('<8B', 137, 77, 67, 65, 80, 48, 13, 10)
 # opcode, record length, channel id, sequence, log time, publish time
 _MESSAGE = struct.Struct('<BQHIQQ')
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
+
+
+@functools.lru_cache(maxsize=None)
+def _message_dtype(size: int) -> np.dtype:
+    """A Message record with a ``size``-byte payload, as a packed numpy record (built once:
+    constructing the dtype cost more than packing a batch of 50 messages)."""
+    return np.dtype([('op', 'u1'), ('len', '<u8'), ('ch', '<u2'), ('seq', '<u4'),
+                     ('log', '<u8'), ('pub', '<u8'), ('data', 'u1', (size,))])
 
 
 class McapFileWriter:
@@ -106,16 +115,23 @@ class McapFileWriter:
         """Many messages of one channel whose payloads have the same size, packed by numpy:
         ``data`` is an (N, L) uint8 array, ``log_times`` N integer nanoseconds (also used as
         publish times). About 0.1 us a message instead of 1 us through :meth:`add_message`."""
+        self.add_batches([channel_id], [len(data)], log_times, data)
+
+    def add_batches(self, channel_ids, counts, log_times: np.ndarray, data: np.ndarray) -> None:
+        """:meth:`add_batch` for several channels at once: ``counts[i]`` messages of
+        ``channel_ids[i]``, one channel's block after the other, their log times and payloads
+        stacked in ``log_times`` and ``data``. The same records as one call per channel,
+        packed by one set of numpy calls (each costs ~1 us whatever its size: 11 topics every
+        50 ms cost 0.3 ms per flush one by one)."""
         n, size = data.shape
         if n == 0:
             return
         log_times = np.asarray(log_times, dtype=np.uint64)
-        rec = np.zeros(n, dtype=np.dtype([('op', 'u1'), ('len', '<u8'), ('ch', '<u2'),
-                                          ('seq', '<u4'), ('log', '<u8'), ('pub', '<u8'),
-                                          ('data', 'u1', (size,))]))
+        rec = np.empty(n, dtype=_message_dtype(size))
+        rec['seq'] = 0
         rec['op'] = Opcode.MESSAGE
         rec['len'] = _MESSAGE_FIXED + size
-        rec['ch'] = channel_id
+        rec['ch'] = np.repeat(np.asarray(channel_ids, dtype=np.uint16), counts)
         rec['log'] = log_times
         rec['pub'] = log_times
         rec['data'] = data
@@ -124,15 +140,21 @@ class McapFileWriter:
             self._chunk_start, self._chunk_end = first, last
         self._chunk_start = min(self._chunk_start, first)
         self._chunk_end = max(self._chunk_end, last)
-        offsets = len(self._chunk) + np.arange(n, dtype=np.uint64) * rec.dtype.itemsize
-        self._chunk_index.setdefault(channel_id, []).append(
-            np.column_stack([log_times, offsets]))
+        pairs = np.empty((n, 2), dtype=np.uint64)
+        pairs[:, 0] = log_times
+        pairs[:, 1] = np.arange(len(self._chunk), len(self._chunk) + n * rec.dtype.itemsize,
+                                rec.dtype.itemsize, dtype=np.uint64)
+        at = 0
+        for cid, k in zip(channel_ids, counts):
+            if k:
+                self._chunk_index.setdefault(cid, []).append(pairs[at:at + k])
+                self._counts[cid] += k
+                at += k
         self._chunk += rec.tobytes()
         if self.message_count == 0 or first < self._start:
             self._start = first
         self._end = max(self._end, last)
         self.message_count += n
-        self._counts[channel_id] += n
 
     def close_chunk(self) -> None:
         """Write the open chunk and its message indexes (nothing when it is empty)."""
@@ -147,14 +169,22 @@ class McapFileWriter:
         chunk_length = self._out.tell() - offset
         index_offsets = {}
         index_start = self._out.tell()
-        for cid, entries in self._chunk_index.items():
-            # MessageIndex: opcode, length, channel id, then (log time, offset) pairs
-            rows = np.concatenate(entries)
-            rows = rows[np.argsort(rows[:, 0], kind='stable')]       # readers expect time order
-            pairs = rows.astype('<u8').tobytes()
-            index_offsets[cid] = self._out.tell()
-            self._write(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 2 + 4 + len(pairs), cid,
-                                    len(pairs)) + pairs)
+        # one MessageIndex per channel (opcode, length, channel id, then (log time, offset)
+        # pairs in time order, ties in insertion order), all sorted and packed at once
+        cids = list(self._chunk_index)
+        rows = np.concatenate([e for c in cids for e in self._chunk_index[c]])
+        counts = [sum(len(e) for e in self._chunk_index[c]) for c in cids]
+        channel = np.repeat(np.arange(len(cids)), counts)
+        pairs = rows[np.lexsort((rows[:, 0], channel))].astype('<u8').tobytes()
+        out, at, pos = [], 0, index_start
+        for cid, k in zip(cids, counts):
+            body = pairs[at:at + 16 * k]
+            at += 16 * k
+            index_offsets[cid] = pos
+            out.append(struct.pack('<BQHI', Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid,
+                                   len(body)) + body)
+            pos += len(out[-1])
+        self._write(b''.join(out))
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=self._chunk_start, message_end_time=self._chunk_end,
             chunk_start_offset=offset, chunk_length=chunk_length,

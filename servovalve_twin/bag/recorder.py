@@ -89,10 +89,11 @@ class Recorder:
         """Write the buffered Float64 values (if recording) and drop what is not kept: a long
         run without a bag or ``keep_values`` does not grow in memory."""
         self._flushed_ns = self.now_ns
+        if self.writer is not None:        # every topic's values at once, in topic order
+            self.writer.write_float64_many(
+                [('/' + topic, times[self._written[topic]:], values[self._written[topic]:])
+                 for topic, (times, values) in self._pending.items()])
         for topic, (times, values) in self._pending.items():
-            start = self._written[topic]
-            if self.writer is not None:
-                self.writer.write_float64('/' + topic, times[start:], values[start:])
             if self.keep_values:
                 self._written[topic] = len(times)
             else:

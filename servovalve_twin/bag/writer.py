@@ -12,6 +12,7 @@ run loses at most that much (``servovalve-twin reindex`` makes the rest readable
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -191,15 +192,27 @@ class BagWriter:
     def write_float64(self, topic: str, log_ns: np.ndarray, values: np.ndarray) -> None:
         """Many std_msgs/Float64 messages of one topic at once (log = publish time): the CDR
         bytes are the encapsulation header 00 01 00 00 and the little-endian double."""
-        n = len(values)
-        if n == 0:
+        self.write_float64_many([(topic, log_ns, values)])
+
+    def write_float64_many(self, batches) -> None:
+        """:meth:`write_float64` of several topics, ``(topic, log times, values)`` each, into
+        the file in that order (one topic's messages after the other's), converted and packed
+        at once (one conversion of the concatenated lists, not two per topic)."""
+        batches = [b for b in batches if len(b[2])]
+        if not batches:
             return
+        counts = [len(v) for _, _, v in batches]
+        n = sum(counts)
+        log_ns = np.fromiter(itertools.chain.from_iterable(t for _, t, _ in batches),
+                             dtype=np.int64, count=n)
+        values = np.fromiter(itertools.chain.from_iterable(v for _, _, v in batches),
+                             dtype='<f8', count=n)
         rows = np.empty((n, 12), dtype=np.uint8)
         rows[:, :4] = np.frombuffer(CDR_HEADER, dtype=np.uint8)
-        rows[:, 4:] = np.asarray(values, dtype='<f8').view(np.uint8).reshape(n, 8)
-        log_ns = np.asarray(log_ns, dtype=np.int64)
-        self._mcap.add_batch(self.channels[topic], log_ns, rows)
-        self.counts[topic] += n
+        rows[:, 4:] = values.view(np.uint8).reshape(n, 8)
+        self._mcap.add_batches([self.channels[t] for t, _, _ in batches], counts, log_ns, rows)
+        for (topic, _, _), k in zip(batches, counts):
+            self.counts[topic] += k
         first, last = int(log_ns.min()), int(log_ns.max())
         self.first_ns = first if self.first_ns is None else min(self.first_ns, first)
         self.last_ns = max(self.last_ns, last)

@@ -218,7 +218,7 @@ class TwinNode(Node):
                 self.tap_value(topic, value)
             if topic in self.bus.routes:
                 self.bus.post(topic, value)
-            if not self.wanted(topic):
+            if not self._wanted.get(topic, True):
                 return
             self._message(topic, value)
             self.pubs[topic].publish(self._f64[topic])
@@ -253,12 +253,13 @@ class LockstepInputs:
         self.ticked = ticked
         self.queues: dict[str, deque] = {n: deque() for n in defaults}
         self.ticks: deque[tuple[int, int]] = deque()
+        self._limits = {n: INPUT_LIMITS.get(n, (-math.inf, math.inf)) for n in defaults}
 
     def push(self, name: str, value: float) -> None:
-        v = finite_or_none(value, name, self.node)
+        v = value if math.isfinite(value) else finite_or_none(value, name, self.node)
         if v is None:
             return
-        lo, hi = INPUT_LIMITS.get(name, (-math.inf, math.inf))
+        lo, hi = self._limits[name]
         if not lo <= v <= hi:
             self.node.get_logger().error(f'ignored {name} = {v!r} outside [{lo:g}, {hi:g}]; '
                                          'keeping the last value', throttle_duration_sec=1.0)

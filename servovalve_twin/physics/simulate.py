@@ -196,16 +196,15 @@ class EhaPlant:
     def tick(self, cor: float, fr: float, psr: float, n_sub: int) -> np.ndarray:
         """Advance ``n_sub`` steps with Cor, FR, PSR held; returns P12, QJ, P1, P2 at the tick's
         start (``n_sub`` = 0: evaluate only)."""
-        for label, v in (('Cor', cor), ('FR', fr), ('PSR', psr)):
-            if not math.isfinite(v):
-                raise ModelError(f'{label} must be finite, got {v!r}')
+        if not (math.isfinite(cor) and math.isfinite(fr) and math.isfinite(psr)):
+            for label, v in (('Cor', cor), ('FR', fr), ('PSR', psr)):
+                if not math.isfinite(v):
+                    raise ModelError(f'{label} must be finite, got {v!r}')
         failed = run_tick(self.model.id, self.s, self.vs, self._kernel_arr, float(cor), float(fr),
                           float(psr), int(n_sub), self.last)
         if failed >= 0:
             raise ModelError(f'valve model {self.model.name} failed to converge')
-        if not self.model.has_ports:
-            self.last[2:] = np.nan
-        return self.last
+        return self.last        # P1, P2: NaN for a model without ports (its state holds NaN)
 
     def compile(self) -> None:
         """Compile the tick loop for the current model now (numba compiles on first call),
