@@ -34,6 +34,23 @@ _MESSAGE = struct.Struct('<BQHIQQ')
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
 
 
+def _pairs(entries) -> np.ndarray:
+    """A channel's index entries, (N, 2) arrays from batches and (log time, offset) tuples
+    from single messages, in insertion order, as one (M, 2) uint64 array."""
+    out, singles = [], []
+    for e in entries:
+        if isinstance(e, tuple):
+            singles.append(e)
+            continue
+        if singles:
+            out.append(np.array(singles, dtype=np.uint64))
+            singles = []
+        out.append(e)
+    if singles:
+        out.append(np.array(singles, dtype=np.uint64))
+    return np.concatenate(out) if len(out) > 1 else out[0]
+
+
 @functools.lru_cache(maxsize=None)
 def _message_dtype(size: int) -> np.dtype:
     """A Message record with a ``size``-byte payload, as a packed numpy record (built once:
@@ -50,7 +67,7 @@ class McapFileWriter:
         self._schemas: Dict[int, Schema] = {}
         self._channels: Dict[int, Channel] = {}
         self._chunk = bytearray()
-        self._chunk_index: Dict[int, List[np.ndarray]] = {}   # (log time, offset) rows
+        self._chunk_index: Dict[int, list] = {}   # (log time, offset): arrays, tuples
         self._chunk_start = 0
         self._chunk_end = 0
         self._chunk_indexes: List[ChunkIndex] = []
@@ -99,8 +116,9 @@ class McapFileWriter:
             self._chunk_start = log_time
         if log_time > self._chunk_end:
             self._chunk_end = log_time
-        self._chunk_index.setdefault(channel_id, []).append(
-            np.array([[log_time, len(chunk)]], dtype=np.uint64))
+        # (log time, offset) kept as a tuple: an array per message cost ~1 us; they become
+        # one array per run of messages when the channel's index is next needed
+        self._chunk_index.setdefault(channel_id, []).append((log_time, len(chunk)))
         chunk += _MESSAGE.pack(Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, 0,
                                log_time, publish_time)
         chunk += data
@@ -172,8 +190,9 @@ class McapFileWriter:
         # one MessageIndex per channel (opcode, length, channel id, then (log time, offset)
         # pairs in time order, ties in insertion order), all sorted and packed at once
         cids = list(self._chunk_index)
-        rows = np.concatenate([e for c in cids for e in self._chunk_index[c]])
-        counts = [sum(len(e) for e in self._chunk_index[c]) for c in cids]
+        parts = [_pairs(self._chunk_index[c]) for c in cids]
+        rows = np.concatenate(parts)
+        counts = [len(p) for p in parts]
         channel = np.repeat(np.arange(len(cids)), counts)
         pairs = rows[np.lexsort((rows[:, 0], channel))].astype('<u8').tobytes()
         out, at, pos = [], 0, index_start

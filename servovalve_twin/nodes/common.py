@@ -254,6 +254,7 @@ class LockstepInputs:
         self.queues: dict[str, deque] = {n: deque() for n in defaults}
         self.ticks: deque[tuple[int, int]] = deque()
         self._limits = {n: INPUT_LIMITS.get(n, (-math.inf, math.inf)) for n in defaults}
+        self._empty = len(self.queues)          # queues without a value (a tick needs none)
 
     def push(self, name: str, value: float) -> None:
         v = value if math.isfinite(value) else finite_or_none(value, name, self.node)
@@ -266,16 +267,21 @@ class LockstepInputs:
             return
         self.latest[name] = v
         if self.lockstep:
-            self.queues[name].append(v)
+            queue = self.queues[name]
+            if not queue:
+                self._empty -= 1
+            queue.append(v)
 
     def begin(self, t_ns: int, n_sub: int) -> None:
         self.ticks.append((t_ns, n_sub))
 
     def pop(self) -> tuple[tuple[int, int] | None, dict[str, float]] | None:
         """The next complete tick, ``((t_ns, n_sub) or None, values)``, or None if incomplete."""
-        if (self.ticks or not self.ticked) and all(self.queues.values()):
+        if self._empty == 0 and (self.ticks or not self.ticked):
             tick = self.ticks.popleft() if self.ticked else None
-            return tick, {n: q.popleft() for n, q in self.queues.items()}
+            values = {n: q.popleft() for n, q in self.queues.items()}
+            self._empty = sum(1 for q in self.queues.values() if not q)
+            return tick, values
         return None
 
 

@@ -100,7 +100,7 @@ class Plant(TwinNode):
 
     def _advance(self, t_ns: int, n_sub: int, cor: float, fr: float, psr: float) -> None:
         xj, dxj = self.plant.xj, self.plant.dxj
-        p12, qj, p1, p2 = self.plant.tick(cor, fr, psr, n_sub)
+        p12, qj, p1, p2 = self.plant.tick(cor, fr, psr, n_sub).tolist()
         self.emit_value('p12', p12)
         self.emit_value('qj', qj)
         if self.plant.model.has_ports:

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ModelError, ParameterError
-from .ecu import ecu_current
+from .ecu import ecu_current_py
 from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams
 from .plant import OUT_COLUMNS, TICK_OUT, run_steps, run_tick
@@ -191,7 +191,7 @@ class EhaPlant:
         """The ECU law: the source of the compiled function :func:`simulate` uses, evaluated
         by the interpreter (a compiled call costs more to enter than this law costs to compute;
         IEEE arithmetic makes both bit-identical, which the tests check)."""
-        return float(ecu_current.py_func(float(com), float(xj), self._kernel))
+        return float(ecu_current_py(float(com), float(xj), self._kernel))
 
     def tick(self, cor: float, fr: float, psr: float, n_sub: int) -> np.ndarray:
         """Advance ``n_sub`` steps with Cor, FR, PSR held; returns P12, QJ, P1, P2 at the tick's
