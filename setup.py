@@ -23,7 +23,7 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'zstandard', 'lz4',
-                      'matplotlib', 'tqdm', 'pyarrow'],
+                      'matplotlib', 'tqdm', 'pyarrow', 'scipy'],
     # 'test': what the suite needs beyond the package (colcon test runs pytest when it is here)
     extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]'],
                     'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets']},

@@ -240,6 +240,62 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    import time
+    from .apps.compare import write_json
+    from .apps.diagnose import diagnose_bag, parse_faults, parse_window, plot_diagnosis
+    free = tuple(n.strip() for n in (args.free or '').split(',') if n.strip())
+    if args.bootstrap < 0:
+        raise TwinError(f'--bootstrap must be >= 0, got {args.bootstrap}')
+    t = time.perf_counter()
+    d = diagnose_bag(args.bag, model=args.model, faults=parse_faults(args.faults),
+                     window=parse_window(args.window), free=free, bootstrap=args.bootstrap)
+    wall = time.perf_counter() - t
+    write_json(args.json, d.to_json())
+    if args.plot:
+        plot_diagnosis(d, args.plot)
+    b = d.best
+    what = 'healthy' if b.severity is None else (
+        f'{b.fault}, severity {b.severity:.4g} (95 % [{b.interval[0]:.4g}, '
+        f'{b.interval[1]:.4g}])')
+    print(f'{args.bag}: {what} -- {len(d.candidates)} hypotheses, {d.evaluations} model runs '
+          f'with {d.model} in {wall:.2f} s -> {args.json}')
+    for c in d.candidates:
+        sev = '' if c.severity is None else f' {c.severity:.4g}'
+        extra = ''.join(f' {k}x{v:.3f}' for k, v in c.free.items())
+        print(f'  {c.fault:24s}{sev:>10s}  score {c.score:10.1f}{extra}')
+    return 0
+
+
+def cmd_prognose(args: argparse.Namespace) -> int:
+    from .apps.compare import write_json
+    from .apps.diagnose import parse_window, plot_prognosis, prognose_bags
+    fault, sep, value = (args.threshold or '').partition('=')
+    if not fault:
+        raise TwinError('--threshold FAULT=S names the fault to trend (S: the severity to '
+                        'fix it at; FAULT alone: the catalog alarm severity)')
+    try:
+        threshold = float(value) if sep and value else None
+    except ValueError:
+        raise TwinError(f'--threshold {args.threshold!r}: S must be a number') from None
+    cycles = None
+    if args.cycles:
+        try:
+            cycles = [float(c) for c in args.cycles.split(',')]
+        except ValueError:
+            raise TwinError(f'--cycles {args.cycles!r}: expected N1,N2,... numbers') from None
+    p = prognose_bags(args.bags, fault, threshold, cycles=cycles, model=args.model,
+                      window=parse_window(args.window))
+    write_json(args.json, p.to_json())
+    if args.plot:
+        plot_prognosis(p, args.plot)
+    r = p.rul
+    print(f'{fault}: {p.trend.kind} trend over {len(p.history)} flights; threshold '
+          f'{p.threshold:g} in {r["median"]:.1f} cycles (90 %: {r["p05"]:.1f} to '
+          f'{r["p95"]:.1f}) -> {args.json}')
+    return 0
+
+
 def _parse_tolerances(items: list[str]) -> dict[str, float]:
     from .apps.compare import COMPARED
     out = {}
@@ -575,6 +631,37 @@ def build_parser() -> argparse.ArgumentParser:
     _add_algorithm_options(p, many=False)
     p.add_argument('--json', metavar='FILE', help='outputs, levels and alarm times as JSON')
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser('diagnose', help='which catalog fault, how severe: a simplified model '
+                                        'fitted to a recorded bag')
+    p.add_argument('bag', metavar='BAG', help='bag directory, .mcap or .db3 file')
+    p.add_argument('--model', default='SQ', metavar='SQ|C2|...',
+                   help='the simplified model fitted (default SQ)')
+    p.add_argument('--faults', metavar='NAMES|all', help='comma-separated hypotheses (default '
+                   'all the catalog faults a simplified model can see)')
+    p.add_argument('--window', metavar='T0:T1', help='fit the rows in [T0, T1] s (default the '
+                   'whole bag)')
+    p.add_argument('--free', metavar='M,CJ,...', help='nuisance parameters estimated '
+                   'alongside (factors on the recorded values, in [0.5, 2])')
+    p.add_argument('--bootstrap', type=int, default=0, metavar='N',
+                   help='the interval from N block-bootstrap refits (default: the Jacobian)')
+    p.add_argument('--json', required=True, metavar='FILE', help='the diagnosis as JSON')
+    p.add_argument('--plot', metavar='FILE.png', help='recorded against fitted signals')
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser('prognose', help='trend a fault over flights (bags) and predict the '
+                                        'remaining useful life')
+    p.add_argument('bags', nargs='+', metavar='BAG', help='one bag per flight, in order')
+    p.add_argument('--cycles', metavar='N1,N2,...', help="each flight's cycle count (default "
+                   '0, 1, 2, ...)')
+    p.add_argument('--threshold', required=True, metavar='FAULT[=S]',
+                   help='the fault and the severity at which it must be fixed (default: the '
+                        "catalog's alarm severity)")
+    p.add_argument('--model', default='SQ', help='the simplified model fitted (default SQ)')
+    p.add_argument('--window', metavar='T0:T1', help='fit window of every flight')
+    p.add_argument('--json', required=True, metavar='FILE', help='the prognosis as JSON')
+    p.add_argument('--plot', metavar='FILE.png', help='history, trend, threshold, RUL')
+    p.set_defaults(func=cmd_prognose)
 
     p = sub.add_parser('faults', help='list the injectable faults')
     p.set_defaults(func=cmd_faults)

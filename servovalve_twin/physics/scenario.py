@@ -21,6 +21,7 @@ or after them (MODELS.md section 9): 1.0/1e-5 is not an integer in floating poin
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, Mapping
 
@@ -75,6 +76,11 @@ class Profile:
         t_ns = np.asarray(t_ns, dtype=np.int64)
         if out is None:
             out = np.empty(t_ns.shape)
+        if self.kind == 'steps' and len(self.points) > 64:
+            # many steps (a recorded run's 1 ms inputs): looked up per sample
+            bp, vals = self._step_arrays
+            out[:] = vals[np.searchsorted(bp, t_ns, side='right') - 1]
+            return out
         if self.kind == 'steps':
             # piecewise constant: filled segment by segment between the breakpoints (the value
             # in force at t is that of the last breakpoint <= t), not looked up per sample
@@ -93,6 +99,12 @@ class Profile:
         wave = offset + amplitude * np.sin(2.0 * math.pi * frequency * t + phase)
         out[:] = np.where(t >= 0.0, wave, offset)
         return out
+
+    @functools.cached_property
+    def _step_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Breakpoints [ns] and values as arrays, built once (not per chunk)."""
+        return (np.array([_ns(t) for t, _ in self.points], dtype=np.int64),
+                np.array([v for _, v in self.points]))
 
     def value(self, t_ns: int) -> float:
         return float(self.values(np.array([t_ns]))[0])

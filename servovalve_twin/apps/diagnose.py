@@ -1,0 +1,109 @@
+"""``diagnose`` and ``prognose`` on bags: reading them, the JSON outputs and the plots (the
+fitting itself is :mod:`..prognostics.diagnosis` and :mod:`..prognostics.prognosis`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..bag.reader import read_bag
+from ..errors import TwinError
+from ..prognostics.diagnosis import DIAGNOSABLE, HEALTHY, SIGNALS, Diagnosis, diagnose
+from ..prognostics.prognosis import Prognosis, prognose
+from .plots import plot_overlay
+from .replay import bag_params
+
+
+def parse_window(text: str | None) -> tuple[float, float] | None:
+    if text is None:
+        return None
+    try:
+        t0, t1 = (float(x) for x in text.split(':'))
+    except ValueError:
+        raise TwinError(f'--window {text!r}: expected T0:T1 in seconds, e.g. 0.2:1.0'
+                        ) from None
+    return t0, t1
+
+
+def parse_faults(text: str | None) -> tuple[str, ...]:
+    if text is None or text == 'all':
+        return DIAGNOSABLE
+    return tuple(n.strip() for n in text.split(',') if n.strip())
+
+
+def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
+                 window: tuple[float, float] | None = None, free: Sequence[str] = (),
+                 bootstrap: int = 0) -> Diagnosis:
+    """Diagnose a recorded run with the parameters and control period it was recorded with."""
+    run = read_bag(bag)
+    return diagnose(run.signals, bag_params(run), control_period=run.control_period or 1e-3,
+                    model=model, faults=faults, window=window, free=free, bootstrap=bootstrap)
+
+
+def plot_diagnosis(d: Diagnosis, path: str | Path) -> None:
+    """Recorded signals against the best hypothesis' fit and the healthy model's."""
+    t = d.recorded['t']
+    runs = {'recorded': d.recorded}
+    best = d.best
+    if best.fault != HEALTHY:
+        runs[f'{best.fault} {best.severity:.4g} ({d.model})'] = dict(best.fitted, t=t)
+    healthy = next(c for c in d.candidates if c.fault == HEALTHY)
+    runs[f'healthy ({d.model})'] = dict(healthy.fitted, t=t)
+    plot_overlay(runs, path, title=f'diagnosis: {best.fault}', reference='recorded',
+                 signals=SIGNALS)
+
+
+def prognose_bags(bags: Sequence[str | Path], fault: str, threshold: float | None, *,
+                  cycles: Sequence[float] | None = None, model: str = 'SQ',
+                  window: tuple[float, float] | None = None) -> Prognosis:
+    """Diagnose ``fault`` on each flight's bag (in order), trend it, predict the RUL."""
+    if cycles is not None and len(cycles) != len(bags):
+        raise TwinError(f'--cycles gives {len(cycles)} counts for {len(bags)} bags')
+    if len(bags) < 3:
+        raise TwinError(f'a trend needs at least three flights (bags), got {len(bags)}')
+    history = []
+    for i, bag in enumerate(bags):
+        d = diagnose_bag(bag, model=model, faults=[fault], window=window)
+        c = next(c for c in d.candidates if c.fault == fault)
+        history.append(dict(cycles=float(cycles[i]) if cycles is not None else float(i),
+                            severity=c.severity, interval=list(c.interval)))
+    return prognose(history, fault, threshold)
+
+
+def plot_prognosis(p: Prognosis, path: str | Path) -> None:
+    """History with intervals, the trend extrapolated, the threshold and the RUL histogram."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    n = np.array([h['cycles'] for h in p.history])
+    s = np.array([h['severity'] for h in p.history])
+    lo = np.array([h['interval'][0] for h in p.history])
+    hi = np.array([h['interval'][1] for h in p.history])
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.0, 6.0))
+    ax.errorbar(n, s, yerr=[s - lo, hi - s], fmt='o', color='k', label='diagnosed (95 %)')
+    finite = p.draws[np.isfinite(p.draws)]
+    end = n[-1] + (np.percentile(finite, 97) if finite.size else n[-1] - n[0]) + 1
+    grid = np.linspace(n[0], end, 200)
+    ax.plot(grid, p.trend(grid), 'C0', label=f'{p.trend.kind} trend')
+    ax.axhline(p.threshold, color='C3', ls='--', label=f'threshold {p.threshold:g}')
+    ax.set_xlabel('flight cycles')
+    ax.set_ylabel(f'{p.fault} severity')
+    ax.legend(fontsize=8)
+    ax.grid(True, lw=0.3)
+    if finite.size:
+        ax2.hist(finite, bins=40, color='C0', alpha=0.7)
+    for k, ls in (('p05', ':'), ('median', '-'), ('p95', ':')):
+        if np.isfinite(p.rul[k]):
+            ax2.axvline(p.rul[k], color='k', ls=ls, label=f'{k} {p.rul[k]:.1f}')
+    ax2.set_xlabel('remaining useful life [cycles]')
+    ax2.legend(fontsize=8)
+    ax2.grid(True, lw=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+__all__ = ['diagnose_bag', 'prognose_bags', 'plot_diagnosis', 'plot_prognosis',
+           'parse_window', 'parse_faults']

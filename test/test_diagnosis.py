@@ -1,0 +1,188 @@
+"""Diagnosis and prognosis (issue 11): faults identified and sized against what was injected,
+trends and RUL against hand computations, the CLI's JSON and its refusals."""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from servovalve_twin.cli import main
+from servovalve_twin.config import load_scenario
+from servovalve_twin.physics.faults import FAULTS
+from servovalve_twin.physics.params import DEFAULTS
+from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, diagnose
+from servovalve_twin.prognostics.prognosis import prognose
+from servovalve_twin.runs import simulate
+
+PAPER = load_scenario('paper').to_dict()
+
+
+def _faulty(fault, severity):
+    return dict(PAPER, faults=[{'at': 0.0, 'fault': fault, 'severity': severity}])
+
+
+def test_the_catalog_faults_a_simplified_model_can_see():
+    assert 'clearance_growth' not in DIAGNOSABLE          # HD geometry
+    assert set(DIAGNOSABLE) == set(FAULTS) - {'clearance_growth'}
+
+
+@pytest.mark.parametrize('fault, severity', [('leakage_growth', 10.0), ('supply_loss', 0.3),
+                                             ('null_bias', -3.0e-3)])
+def test_a_fault_injected_in_the_model_itself_is_recovered(fault, severity):
+    """Plant and model the same (SQ): the injected fault must win and its severity come back
+    to 0.5 % -- the least squares, the bounds, the parameterisation of each fault kind
+    (multiplier, loss, value) and the information criterion all have to be right."""
+    run = simulate('SQ', _faulty(fault, severity), ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ')
+    print(fault, d.best.fault, d.best.severity, d.best.interval)
+    assert d.best.fault == fault
+    assert d.best.severity == pytest.approx(severity, rel=5e-3)
+    lo, hi = d.best.interval
+    assert lo <= d.best.severity <= hi
+
+
+@pytest.mark.parametrize('fault', ['leakage_growth', 'torque_motor_gain_loss',
+                                   'first_stage_flow_loss', 'null_bias'])
+def test_hd_unit_at_the_alarm_severity_is_identified_by_sq(fault):
+    """The real case: the plant is HD, the model SQ (mismatch included). At the catalog's
+    alarm severity each of these is named, and sized within 10 % (measured: 1-4 %)."""
+    demo = FAULTS[fault].demo
+    run = simulate('HD', _faulty(fault, demo), ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ')
+    print(fault, d.best.fault, d.best.severity, 'second', d.candidates[1].fault)
+    assert d.best.fault == fault
+    assert d.best.severity == pytest.approx(demo, rel=0.10)
+
+
+def test_a_healthy_hd_unit_is_called_healthy():
+    """SQ's mismatch against HD fits a small null bias (2 % of its alarm value) better than
+    nothing; the verdict must still be healthy, with every fit kept in the candidates."""
+    run = simulate('HD', PAPER, ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ')
+    assert d.best.fault == 'healthy' and d.best.severity is None and d.best.interval is None
+    assert len(d.candidates) == len(DIAGNOSABLE) + 1
+
+
+def test_linear_trend_and_rul_against_hand_computation():
+    """s = 1 + 0.5 n, observed at n = 0..5 with tight intervals: the threshold 10 is crossed
+    at n = 18, so the RUL after the last flight is 13 cycles."""
+    hist = [dict(cycles=n, severity=1 + 0.5 * n, interval=[1 + 0.5 * n - 1e-3,
+                                                           1 + 0.5 * n + 1e-3])
+            for n in range(6)]
+    p = prognose(hist, 'leakage_growth', 10.0)
+    assert p.trend.kind == 'linear'
+    assert p.rul['median'] == pytest.approx(13.0, abs=0.05)
+    assert p.rul['p05'] <= p.rul['median'] <= p.rul['p95']
+    out = p.to_json()
+    assert set(out) == {'fault', 'threshold', 'rul_cycles', 'trend', 'history'}
+    assert set(out['rul_cycles']) == {'median', 'p05', 'p95'}
+
+
+def test_exponential_trend_is_chosen_when_it_fits():
+    """s = 1 + 0.2 exp(0.3 n): the exponential wins; 10 is reached at n = ln(45)/0.3 = 12.69,
+    6.69 cycles after the last flight (n = 6)."""
+    hist = [dict(cycles=n, severity=1 + 0.2 * np.exp(0.3 * n),
+                 interval=[1 + 0.2 * np.exp(0.3 * n) * 0.999, 1 + 0.2 * np.exp(0.3 * n) * 1.001])
+            for n in range(7)]
+    p = prognose(hist, 'leakage_growth', 10.0)
+    assert p.trend.kind == 'exponential'
+    assert p.rul['median'] == pytest.approx(np.log(45.0) / 0.3 - 6, abs=0.05)
+
+
+def test_prognosis_refuses_fewer_than_three_flights():
+    from servovalve_twin.errors import TwinError
+    with pytest.raises(TwinError, match='at least three flights'):
+        prognose([dict(cycles=0, severity=1.0, interval=[0.9, 1.1])] * 2, 'leakage_growth')
+
+
+@pytest.fixture(scope='module')
+def flights(tmp_path_factory):
+    """Three flights of an SQ actuator whose leakage grows 2, 4, 6 x (cycles 0, 10, 20), and
+    a healthy one, recorded by the ROS twin."""
+    import rclpy
+    from rclpy.context import Context
+    from servovalve_twin.twin import run_twin
+    d = tmp_path_factory.mktemp('flights')
+    ctx = Context()
+    rclpy.init(context=ctx)
+    bags = []
+    try:
+        for i, sev in enumerate((2.0, 4.0, 6.0)):
+            bags.append(d / f'flight{i}')
+            run_twin('SQ', _faulty('leakage_growth', sev), bag=bags[-1], context=ctx,
+                     handle_signals=False, keep_values=False)
+        run_twin('SQ', PAPER, bag=d / 'healthy', context=ctx, handle_signals=False,
+                 keep_values=False)
+    finally:
+        rclpy.try_shutdown(context=ctx)
+    return d, bags
+
+
+def test_diagnose_cli_writes_the_schema(flights, tmp_path, capsys):
+    d, bags = flights
+    out = tmp_path / 'd.json'
+    assert main(['diagnose', str(bags[1]), '--json', str(out), '--plot',
+                 str(tmp_path / 'd.png')]) == 0
+    j = json.loads(out.read_text())
+    assert set(j) == {'fault', 'severity', 'interval', 'candidates', 'model', 'window'}
+    assert j['fault'] == 'leakage_growth' and j['severity'] == pytest.approx(4.0, rel=5e-3)
+    assert j['model'] == 'SQ' and j['window'] == [0.0, 1.0]
+    assert all(set(c) == {'fault', 'severity', 'interval', 'score'} for c in j['candidates'])
+    assert (tmp_path / 'd.png').stat().st_size > 1000
+    assert main(['diagnose', str(d / 'healthy'), '--json', str(out), '--faults',
+                 'leakage_growth,null_bias', '--window', '0.2:0.9']) == 0
+    j = json.loads(out.read_text())
+    assert j['fault'] == 'healthy' and j['severity'] is None and j['window'] == [0.2, 0.9]
+    assert [c['fault'] for c in j['candidates']][0] == 'healthy' and len(j['candidates']) == 3
+
+
+def test_prognose_cli_over_three_flights(flights, tmp_path):
+    """Severities 2, 4, 6 at cycles 0, 10, 20 trend linearly to 10 at cycle 40: 20 cycles
+    left after the last flight."""
+    _, bags = flights
+    out = tmp_path / 'p.json'
+    assert main(['prognose', *map(str, bags), '--cycles', '0,10,20', '--threshold',
+                 'leakage_growth=10', '--json', str(out), '--plot', str(tmp_path / 'p.png')]) == 0
+    j = json.loads(out.read_text())
+    assert j['trend'] == 'linear' and j['threshold'] == 10.0
+    assert [h['cycles'] for h in j['history']] == [0.0, 10.0, 20.0]
+    assert [h['severity'] for h in j['history']] == pytest.approx([2.0, 4.0, 6.0], rel=5e-3)
+    assert j['rul_cycles']['median'] == pytest.approx(20.0, rel=0.02)
+    assert (tmp_path / 'p.png').stat().st_size > 1000
+
+
+def test_bad_diagnosis_input_is_one_line_and_exit_2(flights, tmp_path, capsys):
+    d, bags = flights
+    out = str(tmp_path / 'x.json')
+    cases = [
+        (['diagnose', str(bags[0]), '--json', out, '--faults', 'leakage'], "unknown fault"),
+        (['diagnose', str(bags[0]), '--json', out, '--faults', 'clearance_growth'],
+         'HD geometry'),
+        (['diagnose', str(bags[0]), '--json', out, '--window', '0.5:3'], 'outside the run'),
+        (['diagnose', str(bags[0]), '--json', out, '--window', 'soon'], 'expected T0:T1'),
+        (['diagnose', str(bags[0]), '--json', out, '--model', 'HD'], 'simplified model'),
+        (['diagnose', str(bags[0]), '--json', out, '--free', 'MASS'], 'unknown parameter'),
+        (['prognose', str(bags[0]), str(bags[1]), '--threshold', 'leakage_growth',
+          '--json', out], 'at least three flights'),
+        (['prognose', *map(str, bags), '--threshold', 'leakage_growth', '--cycles', '0,1',
+          '--json', out], '--cycles gives 2 counts for 3 bags'),
+    ]
+    for args, fragment in cases:
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert fragment in err and err.count('\n') == 1 and 'Traceback' not in err, err
+    assert not (tmp_path / 'x.json').exists()
+
+
+def test_a_bag_without_the_needed_topics_is_refused(tmp_path, capsys):
+    """A bag with only the inputs (no /xj, /dxj, /p12) cannot be diagnosed: one line."""
+    from servovalve_twin.bag.writer import BagWriter
+    w = BagWriter(tmp_path / 'inputs', flush_every_ns=None)
+    for topic in ('/com', '/fr', '/psr'):
+        w.add_topic(topic, 'std_msgs/msg/Float64')
+        w.write_float64(topic, np.arange(11) * 1_000_000, np.zeros(11))
+    w.close()
+    assert main(['diagnose', str(tmp_path / 'inputs'), '--json', str(tmp_path / 'x.json')]) == 2
+    err = capsys.readouterr().err
+    assert 'lacks' in err and '/xj' in err and err.count('\n') == 1, err
