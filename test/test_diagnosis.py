@@ -80,14 +80,14 @@ def test_linear_trend_and_rul_against_hand_computation():
 
 
 def test_exponential_trend_is_chosen_when_it_fits():
-    """s = 1 + 0.2 exp(0.3 n): the exponential wins; 10 is reached at n = ln(45)/0.3 = 12.69,
-    6.69 cycles after the last flight (n = 6)."""
-    hist = [dict(cycles=n, severity=1 + 0.2 * np.exp(0.3 * n),
-                 interval=[1 + 0.2 * np.exp(0.3 * n) * 0.999, 1 + 0.2 * np.exp(0.3 * n) * 1.001])
+    """s = 0.5 exp(0.3 n): the exponential wins; 10 is reached at n = ln(20)/0.3 = 9.99,
+    3.99 cycles after the last flight (n = 6)."""
+    hist = [dict(cycles=n, severity=0.5 * np.exp(0.3 * n),
+                 interval=[0.5 * np.exp(0.3 * n) * 0.99, 0.5 * np.exp(0.3 * n) * 1.01])
             for n in range(7)]
     p = prognose(hist, 'leakage_growth', 10.0)
     assert p.trend.kind == 'exponential'
-    assert p.rul['median'] == pytest.approx(np.log(45.0) / 0.3 - 6, abs=0.05)
+    assert p.rul['median'] == pytest.approx(np.log(20.0) / 0.3 - 6, abs=0.05)
 
 
 def test_prognosis_refuses_fewer_than_three_flights():

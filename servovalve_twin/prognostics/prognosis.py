@@ -5,10 +5,13 @@ extrapolated to the threshold at which the unit must be fixed -- the remaining u
 Trends (both two-parameter, chosen by the weighted residual sum of squares):
 
 - linear, ``s(n) = a + b*n``;
-- exponential, ``s(n) = h + a*exp(b*n)`` with ``h`` the fault's healthy severity (1 for a
-  multiplier, 0 for a loss or a value): degradation that accelerates with itself.
+- exponential, ``s(n) = a*exp(b*n)``: degradation that grows in proportion to itself (a
+  leakage multiplier 1, 1.1, 1.21, ...), fitted as a line to ln|s|.
 
-Each severity is weighted by its diagnosed 95 % interval (sigma = half-width/1.96). The RUL is
+Each severity is weighted by its diagnosed 95 % interval (sigma = half-width/1.96), but never
+tighter than :data:`REL_SIGMA_FLOOR` of the severity: the intervals count the fit's noise, not
+the model's bias (SQ reads HD's leakage a few per cent low), and a trend weighted by them
+alone follows that bias. The RUL is
 the cycle at which the trend crosses the threshold, minus the last flight's: its distribution
 comes from Monte Carlo over the trend's parameter covariance (a trend that never reaches the
 threshold in a draw counts as infinite life); median, 5th and 95th percentiles.
@@ -26,8 +29,8 @@ from ..errors import TwinError
 from ..physics.faults import FAULTS
 
 
-def healthy_severity(fault: str) -> float:
-    return 1.0 if FAULTS[fault].kind == 'scale' else 0.0
+#: the smallest relative uncertainty a diagnosed severity is given in a trend
+REL_SIGMA_FLOOR = 0.03
 
 
 @dataclasses.dataclass
@@ -36,14 +39,13 @@ class Trend:
     coef: np.ndarray                # (a, b)
     cov: np.ndarray                 # 2x2
     rss: float
-    healthy: float
 
     def __call__(self, n, coef=None):
         a, b = self.coef if coef is None else coef
         n = np.asarray(n, dtype=float)
         if self.kind == 'linear':
             return a + b * n
-        return self.healthy + a * np.exp(b * n)
+        return a * np.exp(b * n)
 
     def crossing(self, threshold: float, coef: np.ndarray, up: bool) -> np.ndarray:
         """Cycle at which the trend reaches ``threshold`` (from below when ``up``), per row
@@ -54,7 +56,7 @@ class Trend:
                 n = (threshold - a) / b
                 toward = (b > 0) if up else (b < 0)
             else:
-                ratio = (threshold - self.healthy) / a
+                ratio = threshold / a
                 n = np.log(ratio) / b
                 # |s - h| grows with b > 0; it must grow toward a threshold on a's side
                 toward = (ratio > 0) & (((b > 0) & (ratio > 1)) | ((b < 0) & (ratio < 1)))
@@ -62,18 +64,17 @@ class Trend:
 
 
 def fit_trend(cycles: Sequence[float], severities: Sequence[float],
-              sigmas: Sequence[float], fault: str) -> Trend:
+              sigmas: Sequence[float]) -> Trend:
     """The better of the linear and exponential trends (weighted least squares)."""
     n = np.asarray(cycles, dtype=float)
     s = np.asarray(severities, dtype=float)
-    w = 1.0 / np.maximum(np.asarray(sigmas, dtype=float), 1e-12)
-    h = healthy_severity(fault)
-    trends = [_weighted_line(n, s, w, 'linear', h)]
-    d = s - h
-    if np.all(d > 0) or np.all(d < 0):
-        # ln|s - h| = ln|a| + b*n, sigma of the log = sigma/|s - h|
-        sign = 1.0 if d[0] > 0 else -1.0
-        t = _weighted_line(n, np.log(np.abs(d)), w * np.abs(d), 'exponential', h)
+    sig = np.maximum(np.asarray(sigmas, dtype=float), REL_SIGMA_FLOOR * np.abs(s))
+    w = 1.0 / np.maximum(sig, 1e-12)
+    trends = [_weighted_line(n, s, w, 'linear')]
+    if np.all(s > 0) or np.all(s < 0):
+        # ln|s| = ln|a| + b*n, sigma of the log = sigma/|s|
+        sign = 1.0 if s[0] > 0 else -1.0
+        t = _weighted_line(n, np.log(np.abs(s)), w * np.abs(s), 'exponential')
         a = sign * math.exp(t.coef[0])
         jac = np.array([[a, 0.0], [0.0, 1.0]])                  # d(a, b)/d(ln|a|, b)
         t.coef = np.array([a, t.coef[1]])
@@ -83,14 +84,14 @@ def fit_trend(cycles: Sequence[float], severities: Sequence[float],
     return min(trends, key=lambda t: t.rss)
 
 
-def _weighted_line(n, y, w, kind, h) -> Trend:
+def _weighted_line(n, y, w, kind) -> Trend:
     X = np.column_stack([np.ones_like(n), n]) * w[:, None]
     coef, *_ = np.linalg.lstsq(X, y * w, rcond=None)
     res = X @ coef - y * w
     dof = max(len(n) - 2, 1)
     s2 = max(float(res @ res) / dof, 1.0)     # never tighter than the diagnosed intervals
     cov = np.linalg.pinv(X.T @ X) * s2
-    return Trend(kind, coef, cov, float(res @ res), h)
+    return Trend(kind, coef, cov, float(res @ res))
 
 
 @dataclasses.dataclass
@@ -124,7 +125,7 @@ def prognose(history: Sequence[dict[str, Any]], fault: str, threshold: float | N
     sev = [float(h['severity']) for h in history]
     sig = [max((h['interval'][1] - h['interval'][0]) / (2 * 1.96), 1e-9) if h.get('interval')
            else 1.0 for h in history]
-    trend = fit_trend(cycles, sev, sig, fault)
+    trend = fit_trend(cycles, sev, sig)
     rng = np.random.default_rng(seed)
     coef = rng.multivariate_normal(trend.coef, trend.cov, size=draws, check_valid='ignore')
     up = thr > sev[-1] if thr != sev[-1] else thr > sev[0]
