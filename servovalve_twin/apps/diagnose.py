@@ -4,7 +4,7 @@ fitting itself is :mod:`..prognostics.diagnosis` and :mod:`..prognostics.prognos
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 

@@ -202,7 +202,7 @@ class TwinNode(Node):
         return self.bus is None or self._wanted.get(topic, True)
 
     def refresh_subscribers(self) -> None:
-        """Note which topics have DDS subscribers (the twin calls this every /clock period): a
+        """Note which topics have DDS subscribers (the twin calls this every 100 ms): a
         viewer that subscribes mid-run receives the topic from the next refresh on."""
         for topic, pub in self.pubs.items():
             self._wanted[topic] = pub.get_subscription_count() > 0
