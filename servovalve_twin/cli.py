@@ -196,7 +196,9 @@ def _run(args: argparse.Namespace) -> int:
                       control_period=args.control_period, bag=bag, overwrite=args.overwrite,
                       keep_values=args.out is not None, clock_period=args.clock_period,
                       monitor=args.monitor,
-                      algorithms=[(a, _algorithm_params(args)) for a in args.algorithm],
+                      algorithms=[(a, _algorithm_params(args)) for a in args.algorithm]
+                      + ([('servovalve_twin.prognostics.estimator:Estimator',
+                           {'model': args.estimator})] if args.estimator else []),
                       foxglove=args.foxglove,
                       on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
                       if args.progress else None)
@@ -537,6 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                     'own messages')
     p.add_argument('--monitor', metavar='MODEL',
                    help='run the monitor node beside the plant with this simplified model')
+    p.add_argument('--estimator', metavar='MODEL',
+                   help='run the estimator node: diagnosis with this simplified model over '
+                        'the last 0.5 s, every 0.25 s (estimator/<fault>_severity, diagnostics)')
     p.add_argument('--progress', action='store_true',
                    help="print 'flushed up to T s' each time the bag is flushed (50 ms)")
     _add_algorithm_options(p, many=True)

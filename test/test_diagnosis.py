@@ -186,3 +186,22 @@ def test_a_bag_without_the_needed_topics_is_refused(tmp_path, capsys):
     assert main(['diagnose', str(tmp_path / 'inputs'), '--json', str(tmp_path / 'x.json')]) == 2
     err = capsys.readouterr().err
     assert 'lacks' in err and '/xj' in err and err.count('\n') == 1, err
+
+
+def test_the_estimator_node_diagnoses_live_in_the_lockstep(ros_context, tmp_path):
+    """`run --estimator`: the node `estimator` fits the last 0.5 s every 0.25 s while the HD
+    twin flies with a torque-motor gain loss of 0.7; its severity topic is NaN before the first
+    estimate and then within 5 % of the truth, and its diagnostics name the fault (WARN)."""
+    from servovalve_twin.bag.reader import read_bag
+    from servovalve_twin.prognostics.estimator import Estimator
+    from servovalve_twin.twin import Twin
+    faults = 'torque_motor_gain_loss,leakage_growth'
+    with Twin('HD', _faulty('torque_motor_gain_loss', 0.7), context=ros_context,
+              bag=tmp_path / 'b', algorithms=[(Estimator, {'faults': faults})]) as twin:
+        assert [n.get_name() for n in twin.algorithms] == ['estimator']
+        result = twin.run()
+    assert 'first WARN at 0.500 s' in result.verdicts[0]
+    t, v = read_bag(tmp_path / 'b').series['/estimator/torque_motor_gain_loss_severity']
+    before, after = v[t < 500_000_000], v[t >= 500_000_000]
+    assert np.all(np.isnan(before)) and len(after) == 501
+    assert np.all(np.abs(after / 0.7 - 1) < 0.05), after[::100]

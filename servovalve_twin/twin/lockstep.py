@@ -204,7 +204,9 @@ class Twin:
             for i, spec in enumerate(algorithms):
                 cls, aparams = spec if isinstance(spec, tuple) else (spec, None)
                 alg = load_algorithm(cls, aparams)
-                node = AlgorithmNode(alg, name='algorithm' if i == 0 else f'algorithm_{i + 1}',
+                name = getattr(alg, 'node_name', None) or (
+                    'algorithm' if i == 0 else f'algorithm_{i + 1}')
+                node = AlgorithmNode(alg, name=name,
                                      params=self.params, **kw,
                                      parameter_overrides=[sim, period])
                 self.algorithms.append(node)
