@@ -160,8 +160,10 @@ def test_valve_model_switch_through_the_parameter_service(ros_context):
             futures.append(client.set_parameters([Parameter('valve_model', value='C9')]))
         if k == 60:
             futures.append(client.set_parameters([Parameter('valve_model', value='C3')]))
+    # a second of flight: the executor's turns every 100 ms serve the requests (ten chances,
+    # so a request delayed on a busy machine is still served during the run)
     try:
-        with Twin('C2', SHORT, context=ros_context) as twin:
+        with Twin('C2', dict(SHORT, duration=1.0), context=ros_context) as twin:
             twin.run(on_tick=on_tick)
             assert twin.plant.plant.model.name == 'C3'
             assert twin.plant.get_parameter('valve_model').value == 'C3'
