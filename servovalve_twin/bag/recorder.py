@@ -44,20 +44,13 @@ class Recorder:
 
     def record(self, topic: str, msg: Any) -> None:
         """The nodes' tap: ``topic`` as the node names it (relative: 'xj', or '/clock')."""
-        if self.sinks:
-            name = topic if topic[0] == '/' else '/' + topic
-            data = self.encoders[name](msg)
-            for sink in self.sinks:
-                sink(name, data, self.now_ns)
-        pending = self._pending.get(topic)
-        if pending is not None:
-            pending[0].append(self.now_ns)
-            pending[1].append(msg.data)
-        elif self.writer is not None:
-            name = topic if topic[0] == '/' else '/' + topic
-            self.writer.write(name, self.encoders[name](msg), self.now_ns)
+        if topic in self._pending:
+            self.record_value(topic, msg.data)
+        elif self.writer is None and not self.sinks:
+            self._other += 1                  # nothing takes the bytes: do not encode them
         else:
-            self._other += 1
+            name = topic if topic[0] == '/' else '/' + topic
+            self.record_bytes(name, self.encoders[name](msg))
 
     def record_value(self, topic: str, value: float) -> None:
         """:meth:`record` for a Float64 topic's value (the nodes' ``tap_value``): no message."""
@@ -71,8 +64,9 @@ class Recorder:
         values.append(value)
 
     def record_bytes(self, topic: str, data: bytes) -> None:
-        """:meth:`record` of a message already encoded (a non-Float64 topic)."""
-        name = '/' + topic
+        """:meth:`record` of a message already encoded (a non-Float64 topic; relative names
+        are taken as the twin's, '/'-prefixed)."""
+        name = topic if topic[0] == '/' else '/' + topic
         for sink in self.sinks:
             sink(name, data, self.now_ns)
         if self.writer is not None:

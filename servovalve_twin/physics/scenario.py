@@ -84,7 +84,7 @@ class Profile:
         if self.kind == 'steps':
             # piecewise constant: filled segment by segment between the breakpoints (the value
             # in force at t is that of the last breakpoint <= t), not looked up per sample
-            cuts = np.searchsorted(t_ns, [_ns(t) for t, _ in self.points], side='left')
+            cuts = np.searchsorted(t_ns, self._step_arrays[0], side='left')
             out[:cuts[0]] = self.points[-1][1]       # before the first point (never: it is 0)
             for (_, v), a, b in zip(self.points, cuts, list(cuts[1:]) + [t_ns.shape[0]]):
                 out[a:b] = v

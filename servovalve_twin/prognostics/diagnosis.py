@@ -143,6 +143,7 @@ class _Problem:
         self.recorded = {s: np.asarray(signals[s], dtype=float)[self.rows] for s in SIGNALS}
         self.t = t[self.rows]
         self.evaluations = 0
+        self._runs: dict[EhaParams, dict[str, np.ndarray] | None] = {}
 
     def params(self, fault: str | None, severity: float | None,
                free: Mapping[str, float]) -> EhaParams:
@@ -152,13 +153,18 @@ class _Problem:
         return nominal.replace(**resolve(fault, severity, nominal))
 
     def run(self, params: EhaParams) -> dict[str, np.ndarray] | None:
-        self.evaluations += 1
-        try:
-            r = simulate(self.model, self.scenario, params=params,
-                         ecu_period=self.control_period)
-        except ModelError:
-            return None
-        return {s: r[s][self.rows] for s in SIGNALS}
+        """The model's window rows for ``params`` (None if the model failed); each parameter
+        set runs once -- the fitted signals of a hypothesis are those of its last solver
+        evaluations, not a run more."""
+        if params not in self._runs:
+            self.evaluations += 1
+            try:
+                r = simulate(self.model, self.scenario, params=params,
+                             ecu_period=self.control_period)
+                self._runs[params] = {s: r[s][self.rows] for s in SIGNALS}
+            except ModelError:
+                self._runs[params] = None
+        return self._runs[params]
 
     def residuals(self, fitted: dict[str, np.ndarray] | None,
                   recorded: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
