@@ -194,8 +194,12 @@ def test_multi_process_graph_shares_simulated_time(ros_context, tmp_path):
                              QOS)
     try:
         assert spin_until(ex, lambda: len(clock) > 10)
+        # Com every 10 ms of simulated time (not 1 ms): a probe that falls behind 2000
+        # messages/s on a busy machine takes them in bursts stamped with one /clock, which
+        # squeezes the pulse it measures (0.08 s seen once in CI)
         procs.append(subprocess.Popen([console_script('command_generator'), '--ros-args',
-                                       '-p', 'use_sim_time:=true', '-p', f'scenario:={scenario}'],
+                                       '-p', 'use_sim_time:=true', '-p', f'scenario:={scenario}',
+                                       '-p', 'control_period:=0.01'],
                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
         def edges():
             """Times of the first observed rise to 0.03 and the fall after it."""
