@@ -251,22 +251,31 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         raise TwinError(f'--bootstrap must be >= 0, got {args.bootstrap}')
     t = time.perf_counter()
     d = diagnose_bag(args.bag, model=args.model, faults=parse_faults(args.faults),
-                     window=parse_window(args.window), free=free, bootstrap=args.bootstrap)
+                     window=parse_window(args.window), free=free, bootstrap=args.bootstrap,
+                     pairs=args.pairs)
     wall = time.perf_counter() - t
     write_json(args.json, d.to_json())
     if args.plot:
         plot_diagnosis(d, args.plot)
     b = d.best
-    what = 'healthy' if b.severity is None else (
-        f'{b.fault}, severity {b.severity:.4g} (95 % [{b.interval[0]:.4g}, '
-        f'{b.interval[1]:.4g}])')
+    what = 'healthy' if b.severity is None else ', '.join(
+        f'{f}, severity {s:.4g} (95 % [{i[0]:.4g}, {i[1]:.4g}])'
+        for f, s, i in zip(b.faults, *_per_fault(b)))
     print(f'{args.bag}: {what} -- {len(d.candidates)} hypotheses, {d.evaluations} model runs '
           f'with {d.model} in {wall:.2f} s -> {args.json}')
     for c in d.candidates:
-        sev = '' if c.severity is None else f' {c.severity:.4g}'
+        sev = '' if c.severity is None else ' ' + '/'.join(f'{s:.4g}'
+                                                          for s in _per_fault(c)[0])
         extra = ''.join(f' {k}x{v:.3f}' for k, v in c.free.items())
         print(f'  {c.fault:24s}{sev:>10s}  score {c.score:10.1f}{extra}')
     return 0
+
+
+def _per_fault(c) -> tuple[list, list]:
+    """A candidate's severities and intervals as lists (a pair has two of each)."""
+    if isinstance(c.severity, list):
+        return c.severity, c.interval
+    return [c.severity], [c.interval]
 
 
 def cmd_prognose(args: argparse.Namespace) -> int:
@@ -650,6 +659,9 @@ def build_parser() -> argparse.ArgumentParser:
                    'alongside (factors on the recorded values, in [0.5, 2])')
     p.add_argument('--bootstrap', type=int, default=0, metavar='N',
                    help='the interval from N block-bootstrap refits (default: the Jacobian)')
+    p.add_argument('--pairs', action='store_true',
+                   help="also every two faults at once (named 'a+b'; severity and interval "
+                        'then list one entry per fault)')
     p.add_argument('--json', required=True, metavar='FILE', help='the diagnosis as JSON')
     p.add_argument('--plot', metavar='FILE.png', help='recorded against fitted signals')
     p.set_defaults(func=cmd_diagnose)

@@ -64,6 +64,50 @@ def test_a_healthy_hd_unit_is_called_healthy():
     assert len(d.candidates) == len(DIAGNOSABLE) + 1
 
 
+def test_two_faults_at_once_are_recovered_as_a_pair():
+    """--pairs. Plant and model the same (SQ), leakage 10 x and a null bias of -3 mA at once:
+    the pair must win over every single fault (each of which fits only part of it) and both
+    severities come back to 0.5 %, each with its own interval -- a mix-up of the two
+    severities, of their order in the name or of the pair's parameters would fail."""
+    scn = dict(PAPER, faults=[{'at': 0.0, 'fault': 'null_bias', 'severity': -3.0e-3},
+                              {'at': 0.0, 'fault': 'leakage_growth', 'severity': 10.0}])
+    run = simulate('SQ', scn, ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ', pairs=True,
+                 faults=['null_bias', 'supply_loss', 'leakage_growth'])
+    assert [c.fault for c in d.candidates].count('leakage_growth+null_bias') == 1
+    assert len(d.candidates) == 1 + 3 + 3
+    assert d.best.fault == 'leakage_growth+null_bias'
+    assert d.best.severity == pytest.approx([10.0, -3.0e-3], rel=5e-3)
+    for s, (lo, hi) in zip(d.best.severity, d.best.interval):
+        assert lo <= s <= hi
+    j = d.to_json()
+    assert isinstance(j['severity'], list) and len(j['interval']) == 2
+    assert all(len(i) == 2 for i in j['interval'])
+
+
+def test_a_single_hd_fault_is_not_called_a_pair():
+    """An HD unit with only a torque-motor gain loss: with --pairs the verdict stays the
+    single fault. Here the pair with a null bias scores best (the bias takes up some of SQ's
+    mismatch against HD: +1.2 mA, a quarter of its alarm value), but by one point, where a
+    pair must beat each of its singles by PAIR_EVIDENCE = 10."""
+    run = simulate('HD', _faulty('torque_motor_gain_loss', 0.7), ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ', pairs=True)
+    assert d.best.fault == 'torque_motor_gain_loss'
+    assert d.best.severity == pytest.approx(0.7, rel=0.05)
+    assert len(d.candidates) == 1 + 7 + 21
+
+
+def test_hd_unit_with_two_faults_is_diagnosed_as_the_pair():
+    """HD with a torque-motor gain loss of 0.5 and a supply loss of 0.3 (SQ model): the pair
+    is named, each severity within 10 % (measured 2-3 %)."""
+    scn = dict(PAPER, faults=[{'at': 0.0, 'fault': 'torque_motor_gain_loss', 'severity': 0.5},
+                              {'at': 0.0, 'fault': 'supply_loss', 'severity': 0.3}])
+    run = simulate('HD', scn, ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ', pairs=True)
+    assert d.best.fault == 'supply_loss+torque_motor_gain_loss'
+    assert d.best.severity == pytest.approx([0.3, 0.5], rel=0.10)
+
+
 def test_linear_trend_and_rul_against_hand_computation():
     """s = 1 + 0.5 n, observed at n = 0..5 with tight intervals: the threshold 10 is crossed
     at n = 18, so the RUL after the last flight is 13 cycles."""
@@ -135,6 +179,12 @@ def test_diagnose_cli_writes_the_schema(flights, tmp_path, capsys):
     j = json.loads(out.read_text())
     assert j['fault'] == 'healthy' and j['severity'] is None and j['window'] == [0.2, 0.9]
     assert [c['fault'] for c in j['candidates']][0] == 'healthy' and len(j['candidates']) == 3
+    assert main(['diagnose', str(bags[2]), '--json', str(out), '--faults',
+                 'null_bias,leakage_growth', '--pairs']) == 0
+    j = json.loads(out.read_text())
+    assert [c['fault'] for c in j['candidates']].count('leakage_growth+null_bias') == 1
+    assert j['fault'] == 'leakage_growth' and len(j['candidates']) == 4
+    assert 'leakage_growth, severity 6' in capsys.readouterr().out
 
 
 def test_prognose_cli_over_three_flights(flights, tmp_path):
@@ -163,6 +213,8 @@ def test_bad_diagnosis_input_is_one_line_and_exit_2(flights, tmp_path, capsys):
         (['diagnose', str(bags[0]), '--json', out, '--window', 'soon'], 'expected T0:T1'),
         (['diagnose', str(bags[0]), '--json', out, '--model', 'HD'], 'simplified model'),
         (['diagnose', str(bags[0]), '--json', out, '--free', 'MASS'], 'unknown parameter'),
+        (['diagnose', str(bags[0]), '--json', out, '--faults', 'null_bias', '--pairs'],
+         'at least two faults'),
         (['prognose', str(bags[0]), str(bags[1]), '--threshold', 'leakage_growth',
           '--json', out], 'at least three flights'),
         (['prognose', *map(str, bags), '--threshold', 'leakage_growth', '--cycles', '0,1',

@@ -35,11 +35,11 @@ def parse_faults(text: str | None) -> tuple[str, ...]:
 
 def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
                  window: tuple[float, float] | None = None, free: Sequence[str] = (),
-                 bootstrap: int = 0) -> Diagnosis:
+                 bootstrap: int = 0, pairs: bool = False) -> Diagnosis:
     """Diagnose a recorded run with the parameters and control period it was recorded with."""
     run = read_bag(bag)
     return diagnose(run.signals, bag_params(run), control_period=run.control_period or 1e-3,
-                    model=model, faults=faults, window=window, free=free, bootstrap=bootstrap)
+                    model=model, faults=faults, window=window, free=free, bootstrap=bootstrap, pairs=pairs)
 
 
 def plot_diagnosis(d: Diagnosis, path: str | Path) -> None:
@@ -48,7 +48,9 @@ def plot_diagnosis(d: Diagnosis, path: str | Path) -> None:
     runs = {'recorded': d.recorded}
     best = d.best
     if best.fault != HEALTHY:
-        runs[f'{best.fault} {best.severity:.4g} ({d.model})'] = dict(best.fitted, t=t)
+        sev = best.severity if isinstance(best.severity, list) else [best.severity]
+        runs[f'{best.fault} {"/".join(f"{s:.4g}" for s in sev)} ({d.model})'] = dict(
+            best.fitted, t=t)
     healthy = next(c for c in d.candidates if c.fault == HEALTHY)
     runs[f'healthy ({d.model})'] = dict(healthy.fitted, t=t)
     plot_overlay(runs, path, title=f'diagnosis: {best.fault}', reference='recorded',
