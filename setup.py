@@ -26,7 +26,9 @@ setup(
                       'matplotlib', 'tqdm', 'pyarrow', 'scipy'],
     # 'test': what the suite needs beyond the package (colcon test runs pytest when it is here)
     extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]'],
-                    'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets']},
+                    # servovalve_twin.progpy: the EHA as a NASA progpy PrognosticsModel
+                    'progpy': ['progpy'],
+                    'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets', 'progpy']},
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='servovalve_twin maintainers',

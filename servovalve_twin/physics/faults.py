@@ -101,6 +101,17 @@ def resolve(fault: str, severity: float, nominal: EhaParams) -> dict[str, Any]:
     return values
 
 
+def combine(nominal: EhaParams, severities: Mapping[str, float]) -> EhaParams:
+    """``nominal`` with several faults at once, each severity relative to ``nominal`` (as if
+    the others were absent); where two raise FSJ (static friction, and dynamic friction
+    lifting it to FDJ), the larger holds."""
+    changes: dict[str, Any] = {}
+    for fault, severity in severities.items():
+        for k, v in resolve(fault, severity, nominal).items():
+            changes[k] = max(v, changes[k]) if k == 'FSJ' and k in changes else v
+    return nominal.replace(**changes) if changes else nominal
+
+
 def events_from_raw(raw: Sequence[Mapping[str, Any]] | None, nominal: EhaParams,
                     duration: float) -> list[FaultEvent]:
     """Validate a scenario's ``faults:`` list into events (sorted by time)."""

@@ -53,7 +53,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import ModelError, TwinError
-from ..physics.faults import FAULTS, resolve
+from ..physics.faults import FAULTS, combine
 from ..physics.params import PARAM_FIELDS, PARAM_NAMES, EhaParams
 from ..physics.scenario import Profile, Scenario
 from ..physics.simulate import simulate
@@ -172,13 +172,7 @@ class _Problem:
     def params(self, faults: Sequence[str], severities: Sequence[float],
                free: Mapping[str, float]) -> EhaParams:
         nominal = self.design.replace(**{k: self.design.value(k) * v for k, v in free.items()})
-        changes: dict[str, Any] = {}
-        for fault, severity in zip(faults, severities):
-            # each severity relative to the nominal unit, as if the other fault were absent
-            # (dynamic_friction's FSJ rise sees the static_friction of the pair too)
-            for k, v in resolve(fault, severity, nominal).items():
-                changes[k] = max(v, changes[k]) if k == 'FSJ' and k in changes else v
-        return nominal.replace(**changes) if changes else nominal
+        return combine(nominal, dict(zip(faults, severities)))
 
     def run(self, params: EhaParams) -> dict[str, np.ndarray] | None:
         """The model's window rows for ``params`` (None if the model failed); each parameter

@@ -1,0 +1,218 @@
+"""The EHA as a NASA progpy ``PrognosticsModel``: progpy's state estimators (particle filter,
+unscented Kalman filter) and its Monte-Carlo predictor run on the twin's compiled physics.
+
+``pip install 'servovalve_twin[progpy]'`` (progpy is an optional extra)::
+
+    from servovalve_twin.progpy import EhaModel
+    m = EhaModel(valve_model='SQ', degradation=['leakage_growth'],
+                 process_noise={'leakage_growth': 2.0})
+    x0 = m.initialize()
+    x1 = m.next_state(x0, m.InputContainer({'com': 0.02, 'fr': 0.0, 'psr': 2e7}), 1e-3)
+
+The model (discrete in time, vectorized over particles):
+
+- **inputs** ``com`` [m], ``fr`` [N], ``psr`` [Pa], held over ``next_state``'s ``dt``;
+- **states** the plant's mechanical state (``xf``, ``dxf``, ``xs``, ``xj``, ``dxj``), the valve
+  model's own (``p12_warm``: its warm start; ``p1``, ``p2`` for a model with ports), ``p12``
+  (the valve's response at the state, with the supply of the last step: an output kept as a
+  state, since the valve is algebraic) and one *degradation state* per fault of
+  ``degradation`` -- its severity in the catalog's units (:data:`~.physics.faults.FAULTS`),
+  held between steps (a slowly varying parameter), moved by ``growth`` [severity/s] and by
+  progpy's process noise, limited to the catalog's bounds;
+- **outputs** ``xj``, ``dxj``, ``p12``;
+- **events** ``<fault>_alarm``: the degradation reaching the catalog's alarm severity
+  (event state 1 when healthy, 0 at the alarm).
+
+``next_state(x, u, dt)`` advances ``dt`` -- a whole number of control periods -- through the
+same compiled tick as the ROS plant (:func:`~.physics.plant.run_tick`): each period the ECU
+samples Com and XJ (:func:`~.physics.ecu.ecu_current_py`) and the plant takes the period's DT
+steps with Cor, FR and PSR held. With no degradation it is ``simulate(..., ecu_period=
+control_period)`` bit for bit (tested); with degradation the parameters are the nominal ones
+with each fault at its state's severity (:func:`~.physics.faults.combine`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+from progpy import PrognosticsModel
+
+from .errors import ModelError, ParameterError
+from .physics.ecu import ecu_current_py
+from .physics.faults import FAULTS, combine
+from .physics.params import DEFAULTS, KERNEL_DTYPE, EhaParams
+from .physics.plant import TICK_OUT, run_tick
+from .physics.servovalve import S_SIZE, S_XJ
+from .physics.simulate import steps_per
+from .physics.valve_state import V_P1, V_P2, V_P12
+from .physics.valves import get_valve_model
+
+#: the plant's mechanical state, in the compiled layout (:mod:`.physics.servovalve`)
+PLANT_STATES = ('xf', 'dxf', 'xs', 'xj', 'dxj')
+#: parameter sets kept per model: a particle filter's particles share few exact severities
+#: between resamplings, a deterministic run only one
+KERNEL_CACHE = 4096
+
+
+def _healthy(fault: str) -> float:
+    return 1.0 if FAULTS[fault].kind == 'scale' else 0.0
+
+
+class EhaModel(PrognosticsModel):
+    """The EHA with a valve model of the registry and degradation states (module docstring).
+
+    :param valve_model: a name of :data:`~.physics.valves.VALVE_MODELS` (default SQ)
+    :param degradation: catalog faults carried as degradation states
+    :param params: the unit's nominal parameters (default :data:`~.physics.params.DEFAULTS`)
+    :param control_period: the ECU's sampling period [s], a multiple of DT
+    :param kwargs: progpy parameters (``process_noise``, ``measurement_noise``, ...) and
+        ``growth`` = {fault: severity per second}, ``x0`` = {fault: initial severity}
+    """
+
+    is_vectorized = True
+    inputs = ['com', 'fr', 'psr']
+    outputs = ['xj', 'dxj', 'p12']
+
+    def __init__(self, valve_model: str = 'SQ', degradation: Sequence[str] = ('leakage_growth',),
+                 params: EhaParams | None = None, control_period: float = 1e-3, **kwargs: Any):
+        unknown = [f for f in degradation if f not in FAULTS]
+        if unknown:
+            raise ParameterError(f'unknown fault {unknown[0]!r}; expected one of '
+                                 f'{sorted(FAULTS)}')
+        self.valve = get_valve_model(valve_model)
+        self.nominal = params or DEFAULTS
+        self.degradation = tuple(degradation)
+        self.control_period = float(control_period)
+        self.n_sub = steps_per(control_period, self.nominal, 'the control period')
+        ports = ('p1', 'p2') if self.valve.has_ports else ()
+        self.states = list(PLANT_STATES) + ['p12_warm', *ports, 'p12', *self.degradation]
+        self.events = [f'{f}_alarm' for f in self.degradation]
+        self._limits = [(FAULTS[f].lo, FAULTS[f].hi) for f in self.degradation]
+        self._i_deg = [self.states.index(f) for f in self.degradation]
+        self._i_ports = [self.states.index(p) for p in ports]
+        self._i_p12 = self.states.index('p12')
+        self._i_warm = self.states.index('p12_warm')
+        self._kernels: dict[tuple[float, ...], tuple[Any, np.ndarray]] = {}
+        growth = kwargs.pop('growth', {})
+        x0 = kwargs.pop('x0', {})
+        for what, d in (('growth', growth), ('x0', x0)):
+            extra = set(d) - set(self.degradation)
+            if extra:
+                raise ParameterError(f'{what} names {sorted(extra)}, which are not degradation '
+                                     f'states; expected some of {list(self.degradation)}')
+        kwargs.setdefault('process_noise', {k: 0.0 for k in self.states})
+        super().__init__(**kwargs)
+        self.parameters['growth'] = {f: float(growth.get(f, 0.0)) for f in self.degradation}
+        self.parameters['x0'] = {f: float(x0.get(f, _healthy(f))) for f in self.degradation}
+
+    # -- the physics -----------------------------------------------------------------------
+    def _kernel(self, severities: tuple[float, ...]):
+        """The compiled physics' parameters with each degradation at its severity."""
+        k = self._kernels.get(severities)
+        if k is None:
+            if len(self._kernels) >= KERNEL_CACHE:
+                self._kernels.clear()
+            p = combine(self.nominal, dict(zip(self.degradation, severities)))
+            kern = self.valve.kernel(p)
+            k = self._kernels[severities] = (kern, np.array([tuple(kern)], dtype=KERNEL_DTYPE))
+        return k
+
+    def _advance(self, col: np.ndarray, com: float, fr: float, psr: float, periods: int,
+                 growth_dt: np.ndarray) -> np.ndarray:
+        """One particle's state column ``periods`` control periods on; returns the new one."""
+        sev = tuple(min(max(float(col[i]) + g, lo), hi)
+                    for i, g, (lo, hi) in zip(self._i_deg, growth_dt, self._limits))
+        kern, arr = self._kernel(sev)
+        s = col[:S_SIZE].copy()
+        vs = self.valve.initial_state(self.nominal)
+        vs[V_P12] = col[self._i_warm]
+        if self._i_ports:
+            vs[V_P1], vs[V_P2] = col[self._i_ports[0]], col[self._i_ports[1]]
+        out = np.empty(len(TICK_OUT))
+        cor = 0.0
+        for _ in range(periods):
+            cor = ecu_current_py(com, float(s[S_XJ]), kern)
+            if run_tick(self.valve.id, s, vs, arr, cor, fr, psr, self.n_sub, out) >= 0:
+                raise ModelError(f'valve model {self.valve.name} failed to converge')
+        new = np.empty_like(col)
+        new[:S_SIZE] = s
+        new[self._i_warm] = vs[V_P12]
+        if self._i_ports:
+            new[self._i_ports[0]], new[self._i_ports[1]] = vs[V_P1], vs[V_P2]
+        # the valve's response at the new state, on copies: the run's own warm start and
+        # counters stay those of the integration steps, as in simulate()
+        run_tick(self.valve.id, s.copy(), vs.copy(), arr, cor, fr, psr, 0, out)
+        new[self._i_p12] = out[0]
+        for i, v in zip(self._i_deg, sev):
+            new[i] = v
+        return new
+
+    def _periods(self, dt: float) -> int:
+        """``dt`` in control periods. progpy's estimators add their steps up in floating
+        point, so a whole number is met to 1e-6 of a period, and what is left of a window
+        (1e-17 s) is zero periods: no step."""
+        n = dt / self.control_period
+        if not (math.isfinite(n) and n > -1e-6 and abs(n - round(n)) < 1e-6):
+            raise ParameterError(f'dt = {dt} s must be a whole number of control periods '
+                                 f'({self.control_period} s)')
+        return int(round(n))
+
+    # -- progpy's interface ----------------------------------------------------------------
+    def initialize(self, u=None, z=None):
+        """At rest (the state every run starts from), each degradation at ``x0``; P12 is the
+        valve's response at rest to ``u``'s supply (the nominal PSRN without ``u``)."""
+        col = np.zeros(len(self.states))
+        vs = self.valve.initial_state(self.nominal)
+        col[self._i_warm] = vs[V_P12]
+        if self._i_ports:
+            col[self._i_ports[0]], col[self._i_ports[1]] = vs[V_P1], vs[V_P2]
+        sev = tuple(self.parameters['x0'][f] for f in self.degradation)
+        for i, v in zip(self._i_deg, sev):
+            col[i] = v
+        psr = float(np.ravel(u['psr'])[0]) if u is not None else self.nominal.PSRN
+        out = np.empty(len(TICK_OUT))
+        run_tick(self.valve.id, col[:S_SIZE].copy(), vs.copy(), self._kernel(sev)[1], 0.0, 0.0,
+                 psr, 0, out)
+        col[self._i_p12] = out[0]
+        return self.StateContainer(col.reshape(-1, 1))
+
+    def next_state(self, x, u, dt: float):
+        periods = self._periods(dt)
+        if periods == 0:
+            return self.StateContainer(np.array(x.matrix, dtype=float))
+        com, fr, psr = (float(np.ravel(u[k])[0]) for k in ('com', 'fr', 'psr'))
+        growth_dt = np.array([self.parameters['growth'][f] * dt for f in self.degradation])
+        X = np.asarray(x.matrix, dtype=float)
+        new = np.empty_like(X)
+        for j in range(X.shape[1]):
+            new[:, j] = self._advance(X[:, j], com, fr, psr, periods, growth_dt)
+        return self.StateContainer(new)
+
+    def apply_limits(self, x):
+        """Each degradation within the catalog's bounds, silently: progpy's own limits warn at
+        every clip, and a random walk at the healthy bound clips at every step."""
+        X = x.matrix
+        for i, (lo, hi) in zip(self._i_deg, self._limits):
+            np.clip(X[i], lo, hi, out=X[i])
+        return x
+
+    def output(self, x):
+        X = np.asarray(x.matrix, dtype=float)
+        return self.OutputContainer(X[[self.states.index('xj'), self.states.index('dxj'),
+                                       self._i_p12]])
+
+    def _progress(self, x) -> dict[str, np.ndarray]:
+        """Each degradation's way from healthy (0) to its alarm severity (1)."""
+        return {f: (np.asarray(x[f], dtype=float) - _healthy(f))
+                / (FAULTS[f].demo - _healthy(f)) for f in self.degradation}
+
+    def event_state(self, x) -> dict:
+        return {f'{f}_alarm': np.clip(1.0 - p, 0.0, 1.0) for f, p in self._progress(x).items()}
+
+    def threshold_met(self, x) -> dict:
+        return {f'{f}_alarm': p >= 1.0 for f, p in self._progress(x).items()}
+
+
+__all__ = ['EhaModel', 'PLANT_STATES']
