@@ -28,7 +28,10 @@ setup(
     extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]'],
                     # servovalve_twin.progpy: the EHA as a NASA progpy PrognosticsModel
                     'progpy': ['progpy'],
-                    'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets', 'progpy']},
+                    # servovalve-twin fmu: an FMI 2.0 co-simulation FMU of the actuator
+                    'fmu': ['pythonfmu'],
+                    'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets', 'progpy',
+                             'pythonfmu', 'fmpy']},
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='servovalve_twin maintainers',

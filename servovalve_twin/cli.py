@@ -147,6 +147,22 @@ def cmd_faults(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fmu(args: argparse.Namespace) -> int:
+    import time
+    try:
+        import pythonfmu  # noqa: F401
+    except ImportError:
+        raise TwinError("the fmu command needs pythonfmu: pip install 'servovalve_twin[fmu]'"
+                        ) from None
+    from .fmu import build_fmu
+    t = time.perf_counter()
+    out = build_fmu(args.valve_model, args.out, control_period=args.control_period)
+    print(f'{out}: FMI 2.0 co-simulation FMU of the EHA with {args.valve_model}, ECU every '
+          f'{args.control_period:g} s ({out.stat().st_size / 1e3:.0f} kB, '
+          f'{time.perf_counter() - t:.1f} s)')
+    return 0
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from .apps.report import make_report
     text = make_report(out_dir=Path(args.out_dir), readme=Path(args.readme) if args.readme
@@ -679,6 +695,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--json', required=True, metavar='FILE', help='the prognosis as JSON')
     p.add_argument('--plot', metavar='FILE.png', help='history, trend, threshold, RUL')
     p.set_defaults(func=cmd_prognose)
+
+    p = sub.add_parser('fmu', help='an FMI 2.0 co-simulation FMU of the actuator (pythonfmu)')
+    p.add_argument('--valve-model', required=True, metavar='NAME',
+                   help='the valve model inside (a name of the registry: C2, SQ, HD, ...)')
+    p.add_argument('--control-period', type=float, default=1e-3, metavar='S',
+                   help='the ECU sampling period [s], a multiple of DT (default 0.001); a '
+                        'communication step must be a whole number of them')
+    p.add_argument('out', metavar='OUT.fmu', help='the FMU file to write (a new one)')
+    p.set_defaults(func=cmd_fmu)
 
     p = sub.add_parser('faults', help='list the injectable faults')
     p.set_defaults(func=cmd_faults)

@@ -206,6 +206,15 @@ class EhaPlant:
             raise ModelError(f'valve model {self.model.name} failed to converge')
         return self.last        # P1, P2: NaN for a model without ports (its state holds NaN)
 
+    def response(self, fr: float, psr: float) -> np.ndarray:
+        """P12, QJ, P1, P2 at the current state for supply ``psr``, evaluated on copies of the
+        state: the run continues as if it had not been asked (a valve's warm start and counters
+        are those of its integration steps)."""
+        out = np.full(len(TICK_OUT), np.nan)
+        run_tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0,
+                 float(fr), float(psr), 0, out)
+        return out
+
     def compile(self) -> None:
         """Compile the tick loop for the current model now (numba compiles on first call),
         on scratch copies of the state: the first real tick then costs what every tick costs."""

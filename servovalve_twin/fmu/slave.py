@@ -1,0 +1,89 @@
+"""The FMU's model: an FMI 2.0 co-simulation slave (pythonfmu) of the EHA.
+
+``servovalve-twin fmu`` packs this file into the FMU with ``eha_fmu.json`` (the valve model and
+control period it was built for) as a resource. It runs in the importing tool's Python, which
+must have ``servovalve_twin`` installed (pythonfmu FMUs need a Python to execute: the FMU says
+so, ``needsExecutionTool``).
+
+Variables: inputs ``com`` [m], ``fr`` [N], ``psr`` [Pa] -- *discrete*, held over a
+communication step as the twin holds them over a control period (an importer must not
+interpolate them); outputs ``xj``, ``dxj``, ``p12``, ``xs``; parameters every settable EHA
+parameter under its name (derived ones derive from them) and ``control_period``. A step is a
+whole number of control periods of the ROS plant's compiled tick
+(:class:`servovalve_twin.physics.simulate.EhaPlant`), so the outputs are ``simulate``'s.
+"""
+
+import json
+from pathlib import Path
+
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+
+from servovalve_twin.errors import TwinError
+from servovalve_twin.physics.params import DEFAULTS, PARAM_FIELDS
+from servovalve_twin.physics.simulate import EhaPlant, steps_per
+
+CONFIG = 'eha_fmu.json'
+_TYPES = {'float': Real, 'int': Integer, 'bool': Boolean}
+
+
+class EhaFmu(Fmi2Slave):
+    author = 'servovalve_twin'
+    description = ('Electro-hydraulic actuator of Dalla Vedova & Alimhillaj (EECS 2018): ECU, '
+                   'two-stage servovalve, fluid model, jack')
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        cfg = json.loads((Path(self.resources) / CONFIG).read_text())
+        self.valve_model = cfg['valve_model']
+        self.control_period = float(cfg['control_period'])
+        self.com, self.fr, self.psr = 0.0, 0.0, float(DEFAULTS.PSRN)
+        self.xj = self.dxj = self.p12 = self.xs = 0.0
+        self._plant = None
+        # the settable parameters; the derived ones (GM, V0, C4_alpha) derive from these
+        self._params = {n: getattr(DEFAULTS, n) for n, f in PARAM_FIELDS.items()
+                        if f.default is not None}
+        for n in ('com', 'fr', 'psr'):
+            self.register_variable(Real(n, causality=Fmi2Causality.input,
+                                        variability=Fmi2Variability.discrete))
+        for n in ('xj', 'dxj', 'p12', 'xs'):
+            self.register_variable(Real(n, causality=Fmi2Causality.output,
+                                        variability=Fmi2Variability.continuous))
+        self.register_variable(Real('control_period', causality=Fmi2Causality.parameter,
+                                    variability=Fmi2Variability.fixed,
+                                    description='ECU sampling period [s], a multiple of DT'))
+        for n, value in self._params.items():
+            meta = PARAM_FIELDS[n].metadata
+            self.register_variable(_TYPES[meta['kind']](
+                n, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                description=f'{meta["doc"]} [{meta["unit"]}]',
+                getter=lambda n=n: self._params[n],
+                setter=lambda v, n=n: self._params.__setitem__(n, v)))
+
+    def exit_initialization_mode(self):
+        try:
+            params = DEFAULTS.replace(**self._params)
+            self._n_sub = steps_per(self.control_period, params, 'control_period')
+            self._plant = EhaPlant(self.valve_model, params)
+        except TwinError as exc:
+            self.log(str(exc))
+            raise
+        self._outputs()
+
+    def do_step(self, current_time, step_size):
+        periods = round(step_size / self.control_period)
+        if periods < 1 or abs(step_size - periods * self.control_period) > 1e-9 * step_size:
+            self.log(f'step {step_size} s is not a whole number of control periods '
+                     f'({self.control_period} s)')
+            return False
+        plant = self._plant
+        for _ in range(periods):
+            cor = plant.control(self.com, plant.xj)
+            plant.tick(cor, self.fr, self.psr, self._n_sub)
+        self._outputs()
+        return True
+
+    def _outputs(self):
+        plant = self._plant
+        self.xj, self.dxj, self.xs = plant.xj, plant.dxj, plant.xs
+        # the valve's answer at the new state to the supply of the step just taken
+        self.p12 = float(plant.response(self.fr, self.psr)[0])
