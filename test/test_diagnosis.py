@@ -55,6 +55,20 @@ def test_hd_unit_at_the_alarm_severity_is_identified_by_sq(fault):
     assert d.best.severity == pytest.approx(demo, rel=0.10)
 
 
+def test_a_flat_fit_gets_the_interval_of_its_flat_stretch():
+    """HD with static friction 20 x (SQ model): the cost is flat from about 13 to 30 x (the
+    run never reaches the break-away force there), so the fit stops inside that stretch
+    (13.6) with a zero Jacobian -- a zero-width interval if only the Jacobian were read. The
+    verdict's likelihood-ratio interval must span the stretch and so hold the truth."""
+    run = simulate('HD', _faulty('static_friction', 20.0), ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ',
+                 faults=['static_friction'])
+    lo, hi = d.best.interval
+    print(d.best.severity, d.best.interval)
+    assert d.best.fault == 'static_friction'
+    assert lo < 13.0 and 20.0 < hi < 40.0
+
+
 def test_a_healthy_hd_unit_is_called_healthy():
     """SQ's mismatch against HD fits a small null bias (2 % of its alarm value) better than
     nothing; the verdict must still be healthy, with every fit kept in the candidates."""

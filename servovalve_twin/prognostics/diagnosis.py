@@ -30,9 +30,14 @@ fault absorbs some of SQ's mismatch against HD and wins by 1-7 points on units w
 (measured), where units with two faults give 57-136. ``candidates`` keep every fit, in score order after the
 verdict.
 
-Confidence. The severity's 95 % interval comes from the fit's Jacobian, ``cov = s^2
-(J^T J)^-1`` inflated by ``n/n_eff`` for the correlation, or, with ``bootstrap`` = N, from N
-refits to the fitted signals plus moving blocks (50 ms) of the residuals (percentiles).
+Confidence. A severity's 95 % interval comes from the fit's Jacobian, ``cov = s^2
+(J^T J)^-1`` inflated by ``n/n_eff`` for the correlation (the catalog's bounds where the
+residuals do not move with the severity at the fit). The verdict's is joined with the
+likelihood-ratio interval along its severity (:func:`_ratio_interval`): a fit that stops on a
+flat stretch of the cost -- static friction beyond the break-away the run reaches -- has a
+zero Jacobian there and a Jacobian interval of zero width. With ``bootstrap`` = N, the
+verdict's interval is instead from N refits to the fitted signals plus moving blocks (50 ms)
+of the residuals (percentiles).
 
 Pairs. A pair is named ``'a+b'`` (catalog order) and its ``severity`` and ``interval`` are
 lists, one entry per fault in that order. Its fit starts from the two single-fault optima (and
@@ -314,7 +319,9 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         k = len(x)
         score = n_eff * math.log(max(rss, 1e-300) / n) + k * math.log(n_eff)
         sevs = [float(v) for v in x[:len(hyp)]]
-        intervals = [_jacobian_interval(f, i, x, res, jac, n, n_eff) for i, f in enumerate(hyp)]
+        intervals = [_jacobian_interval(f, i, x, res, jac, n, n_eff) or (FAULTS[f].lo,
+                                                                           FAULTS[f].hi)
+                     for i, f in enumerate(hyp)]
         freev = dict(zip(free, x[len(hyp):].tolist()))
         fitted = problem.run(problem.params(hyp, sevs, freev))
         if len(hyp) == 1:
@@ -335,6 +342,11 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                                for f in c.faults if len(c.faults) == 2)))
     candidates.remove(best)
     candidates.insert(0, best)
+    if best.fault != HEALTHY:
+        hyp, x, res, jac = next(r for r in results if '+'.join(r[0]) == best.fault)
+        ivs = [_ratio_interval(problem, hyp, i, x, free, res, n, n_eff, jac)
+               for i in range(len(hyp))]
+        best.interval = ivs[0] if len(ivs) == 1 else ivs
     if bootstrap and best.fault != HEALTHY:
         boot = _bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
@@ -353,9 +365,13 @@ def _detectable(c: Candidate) -> bool:
                for f, s in zip(c.faults, _severities(c)))
 
 
-def _jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float]:
-    """95 % interval of the severity x[i] of ``fault``."""
+def _jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
+    """95 % interval of the severity x[i] of ``fault`` from the fit's Jacobian; None where the
+    residuals do not move with it at the fit (a flat stretch: static friction beyond the
+    break-away a run reaches), where the Jacobian says nothing."""
     spec = FAULTS[fault]
+    if not np.any(jac[:, i]):
+        return None
     k = len(x)
     s2 = float(np.dot(res, res)) / max(n - k, 1)
     jtj = jac.T @ jac
@@ -367,6 +383,60 @@ def _jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float]:
     if not math.isfinite(half):
         return (spec.lo, spec.hi)
     return (max(spec.lo, float(x[i]) - half), min(spec.hi, float(x[i]) + half))
+
+
+#: chi-square with one degree of freedom at 95 %
+CHI2_95 = 3.841
+
+
+def _ratio_interval(problem: _Problem, faults: Sequence[str], i: int, x: np.ndarray,
+                    free: Sequence[str], res: np.ndarray, n: int, n_eff: float,
+                    jac: np.ndarray) -> tuple[float, float]:
+    """The verdict's 95 % interval for severity ``i``: the severities whose RSS, the rest held
+    at the fit, stays within ``CHI2_95*s^2*n/n_eff`` of the fit's (a likelihood-ratio reading
+    with the residual variance and correlation of the fit), joined with the Jacobian's. Where
+    the cost is flat the ratio interval spans the flat stretch; where it is a parabola the two
+    agree. About 25 model runs."""
+    spec = FAULTS[faults[i]]
+    rss0 = float(np.dot(res, res))
+    limit = rss0 + CHI2_95 * rss0 / max(n - len(x), 1) * (n / n_eff)
+    nf = len(faults)
+    fr = {k: float(v) for k, v in zip(free, x[nf:])}
+
+    def inside(v: float) -> bool:
+        sev = [float(s) for s in x[:nf]]
+        sev[i] = v
+        r = problem.residuals(problem.run(problem.params(faults, sev, fr)))
+        return float(np.dot(r, r)) <= limit
+
+    x0 = float(x[i])
+    ends = []
+    for bound in (spec.lo, spec.hi):
+        # step out geometrically from the fit until outside (or at the bound), then bisect
+        step, last_in, out = (bound - x0) / 256.0, x0, None
+        while step and out is None:
+            v = x0 + step
+            if abs(v - x0) >= abs(bound - x0):
+                v = bound
+            if inside(v):
+                last_in = v
+                if v == bound:
+                    break
+                step *= 2.0
+            else:
+                out = v
+        for _ in range(6 if out is not None else 0):
+            mid = 0.5 * (last_in + out)
+            if inside(mid):
+                last_in = mid
+            else:
+                out = mid
+        ends.append(last_in)
+    lo, hi = ends
+    jac_iv = _jacobian_interval(faults[i], i, x, res, jac, n, n_eff)
+    if jac_iv is not None:
+        lo, hi = min(lo, jac_iv[0]), max(hi, jac_iv[1])
+    return (float(lo), float(hi))
 
 
 def _bootstrap_intervals(problem: _Problem, best: Candidate, free: list[str], n: int,
