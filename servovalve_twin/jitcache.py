@@ -22,12 +22,16 @@ import os
 from numba import njit
 
 _PHYSICS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'physics')
+_THIS_FILE = os.path.abspath(__file__)
 
 
 @functools.lru_cache(maxsize=None)
 def physics_stamp() -> bytes:
-    """SHA-256 over the relative names and contents of every ``.py`` file under physics/."""
+    """SHA-256 over the relative names and contents of every ``.py`` file under physics/, and
+    of this file (it holds the compile options: an edit of them must recompile too)."""
     h = hashlib.sha256()
+    with open(_THIS_FILE, 'rb') as f:
+        h.update(f.read())
     for root, dirs, files in os.walk(_PHYSICS_DIR):
         dirs[:] = sorted(d for d in dirs if d != '__pycache__')
         for name in sorted(f for f in files if f.endswith('.py')):

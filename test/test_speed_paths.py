@@ -74,7 +74,8 @@ def test_a_second_process_loads_the_step_loop_from_the_disk_cache(tmp_path):
 
 def test_physics_stamp_changes_with_any_physics_source(tmp_path, monkeypatch):
     """The cache stamp covers every file the loops inline, not only the loop's own: an edit
-    of a valve model alone changes it (numba's own stamp would miss it and load stale code)."""
+    of a valve model alone changes it (numba's own stamp would miss it and load stale code);
+    so does an edit of jitcache.py, which holds the compile options."""
     import shutil
     from servovalve_twin import jitcache
     copy = tmp_path / 'physics'
@@ -89,6 +90,13 @@ def test_physics_stamp_changes_with_any_physics_source(tmp_path, monkeypatch):
     hd = copy / 'valves' / 'hd.py'
     hd.write_text(hd.read_text() + '\n# edited\n')
     jitcache.physics_stamp.cache_clear()
-    assert jitcache.physics_stamp() != before
+    after_hd = jitcache.physics_stamp()
+    assert after_hd != before
+    # the compile options live in jitcache.py: editing them recompiles too
+    options = tmp_path / 'jitcache.py'
+    options.write_text(open(jitcache._THIS_FILE).read() + '\n# error_model changed\n')
+    monkeypatch.setattr(jitcache, '_THIS_FILE', str(options))
+    jitcache.physics_stamp.cache_clear()
+    assert jitcache.physics_stamp() != after_hd
     monkeypatch.undo()
     jitcache.physics_stamp.cache_clear()
