@@ -76,17 +76,18 @@ class Profile:
         t_ns = np.asarray(t_ns, dtype=np.int64)
         if out is None:
             out = np.empty(t_ns.shape)
-        if self.kind == 'steps' and len(self.points) > 64:
-            # many steps (a recorded run's 1 ms inputs): looked up per sample
-            bp, vals = self._step_arrays
-            out[:] = vals[np.searchsorted(bp, t_ns, side='right') - 1]
-            return out
         if self.kind == 'steps':
-            # piecewise constant: filled segment by segment between the breakpoints (the value
-            # in force at t is that of the last breakpoint <= t), not looked up per sample
-            cuts = np.searchsorted(t_ns, self._step_arrays[0], side='left')
-            out[:cuts[0]] = self.points[-1][1]       # before the first point (never: it is 0)
-            for (_, v), a, b in zip(self.points, cuts, list(cuts[1:]) + [t_ns.shape[0]]):
+            # piecewise constant: the value in force at t is that of the last breakpoint <= t,
+            # filled segment by segment between the breakpoints, not looked up per sample
+            bp, vals = self._step_arrays
+            cuts = np.searchsorted(t_ns, bp, side='left')
+            out[:cuts[0]] = vals[-1]                   # before the first point (never: it is 0)
+            if len(vals) > 64:
+                # many steps (a recorded run's 1 ms inputs): each value repeated over its
+                # samples in one call (a diagnosis runs the model a hundred times on them)
+                out[cuts[0]:] = np.repeat(vals, np.diff(cuts, append=t_ns.shape[0]))
+                return out
+            for v, a, b in zip(vals.tolist(), cuts, list(cuts[1:]) + [t_ns.shape[0]]):
                 out[a:b] = v
             return out
         if self.kind == 'ramp':
