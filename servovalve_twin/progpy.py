@@ -44,13 +44,11 @@ from .physics.ecu import ecu_current_py
 from .physics.faults import FAULTS, combine
 from .physics.params import DEFAULTS, KERNEL_DTYPE, EhaParams
 from .physics.plant import TICK_OUT, run_tick
-from .physics.servovalve import S_SIZE, S_XJ
+from .physics.servovalve import PLANT_STATE, S_SIZE, S_XJ
 from .physics.simulate import steps_per
 from .physics.valve_state import V_P1, V_P2, V_P12
 from .physics.valves import get_valve_model
 
-#: the plant's mechanical state, in the compiled layout (:mod:`.physics.servovalve`)
-PLANT_STATES = ('xf', 'dxf', 'xs', 'xj', 'dxj')
 #: parameter sets kept per model: a particle filter's particles share few exact severities
 #: between resamplings, a deterministic run only one
 KERNEL_CACHE = 4096
@@ -87,7 +85,7 @@ class EhaModel(PrognosticsModel):
         self.control_period = float(control_period)
         self.n_sub = steps_per(control_period, self.nominal, 'the control period')
         ports = ('p1', 'p2') if self.valve.has_ports else ()
-        self.states = list(PLANT_STATES) + ['p12_warm', *ports, 'p12', *self.degradation]
+        self.states = list(PLANT_STATE) + ['p12_warm', *ports, 'p12', *self.degradation]
         self.events = [f'{f}_alarm' for f in self.degradation]
         self._limits = [(FAULTS[f].lo, FAULTS[f].hi) for f in self.degradation]
         self._i_deg = [self.states.index(f) for f in self.degradation]
@@ -215,4 +213,4 @@ class EhaModel(PrognosticsModel):
         return {f'{f}_alarm': p >= 1.0 for f, p in self._progress(x).items()}
 
 
-__all__ = ['EhaModel', 'PLANT_STATES']
+__all__ = ['EhaModel']

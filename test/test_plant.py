@@ -4,6 +4,7 @@ sampled ECU, determinism."""
 import numpy as np
 import pytest
 
+from servovalve_twin.errors import ParameterError
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.physics.simulate import EhaPlant
 from servovalve_twin.runs import simulate
@@ -150,3 +151,17 @@ def test_first_stage_step_response_against_the_closed_form():
         worst_f = max(worst_f, abs(s[S_XF] - exact[0]) / x_ss[2])
     print(f'|XS - exact| <= {worst_s:.2e}, |XF - exact| <= {worst_f:.2e} of the final XS')
     assert worst_s < 2e-3 and worst_f < 2e-3
+
+
+def test_simulate_continues_from_a_given_plant_state():
+    """``initial``: a jack already at the commanded 10 mm, at rest, with no load, stays there
+    (row 0 holds exactly the given state; the loop has nothing to correct: XJ moves by less
+    than a micrometre), where the same run from rest travels the 10 mm. An ignored or
+    misplaced initial state fails both."""
+    scn = {'duration': 0.05, 'com': [[0.0, 0.01]], 'fr': [[0.0, 0.0]], 'psr': [[0.0, 2.0e7]]}
+    held = simulate('C2', scn, initial={'xj': 0.01})
+    assert held['xj'][0] == 0.01 and held['dxj'][0] == 0.0
+    assert np.max(np.abs(held['xj'] - 0.01)) < 1e-6
+    assert simulate('C2', scn)['xj'][-1] > 0.005
+    with pytest.raises(ParameterError, match='unknown plant state'):
+        simulate('C2', scn, initial={'x': 0.0})

@@ -15,6 +15,8 @@ S_XS = 2      # spool displacement XS [m]
 S_XJ = 3      # jack position XJ [m]
 S_DXJ = 4     # jack velocity DXJ [m/s]
 S_SIZE = 5
+#: the same layout by name (progpy states, simulate's ``initial``)
+PLANT_STATE = ('xf', 'dxf', 'xs', 'xj', 'dxj')
 
 
 @jit(inline='always')

@@ -23,7 +23,7 @@ from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams
 from .plant import OUT_COLUMNS, TICK_OUT, run_steps, run_tick
 from .scenario import Scenario, as_scenario
-from .servovalve import S_DXJ, S_SIZE, S_XJ, S_XS
+from .servovalve import PLANT_STATE, S_DXJ, S_SIZE, S_XJ, S_XS
 from .valves import ValveModel, get_valve_model
 
 OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
@@ -86,7 +86,8 @@ class RunResult:
 
 def simulate(valve_model: str, scenario: Scenario | Mapping,
              overrides: Mapping[str, Any] | None = None, *, ecu_period: float | None = None,
-             params: EhaParams | None = None) -> RunResult:
+             params: EhaParams | None = None,
+             initial: Mapping[str, float] | None = None) -> RunResult:
     """Run ``scenario`` with ``valve_model``, ROS-free, in one compiled loop.
 
     :param valve_model: a name of :data:`~.valves.VALVE_MODELS`
@@ -94,6 +95,9 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     :param overrides: parameter name -> value, applied after the scenario's own ``params``
     :param ecu_period: sample the ECU with this period [s] (a multiple of DT); None = continuous
     :param params: base parameters (default :data:`~.params.DEFAULTS`)
+    :param initial: the plant state at t = 0 by name (:data:`~.servovalve.PLANT_STATE`: ``xf``, ``dxf``,
+        ``xs``, ``xj``, ``dxj``; the others at rest): a run that continues from a recorded
+        instant (a diagnosis over a window); the valve state starts afresh
     :raises TwinError: bad model name, parameter, scenario, period; valve failure
     """
     model = get_valve_model(valve_model)
@@ -108,6 +112,13 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     kernels, seg_start = _fault_segments(model, scn, p)
     out = np.full((n_rows, len(OUT_COLUMNS)), np.nan)
     s = np.zeros(S_SIZE)
+    for name, value in (initial or {}).items():
+        if name not in PLANT_STATE:
+            raise ParameterError(f'initial: unknown plant state {name!r}; expected some of '
+                                 f'{list(PLANT_STATE)}')
+        if not math.isfinite(value):
+            raise ParameterError(f'initial {name} must be finite, got {value!r}')
+        s[PLANT_STATE.index(name)] = value
     vs = model.initial_state(p)
     carry = np.zeros(2)             # Cor and the parameter segment, carried between chunks
     # one buffer for the chunk's times and one per input, reused chunk after chunk

@@ -46,7 +46,8 @@ from each alone), so that it costs about what one single fault costs.
 The hypothesis holds over the whole simulated stretch, from t = 0 to the window's end: a flight
 with one degradation level (prognosis). A fault that appears mid-run is diagnosed on a window
 after its onset, with the model run faulty from the start -- a bias for faults that change the
-state before the window.
+state before the window -- unless ``start`` (after the onset) has the model start from the
+recorded jack state there, as the live estimator does.
 """
 
 from __future__ import annotations
@@ -139,7 +140,8 @@ class _Problem:
     """The recorded run cut to the window, and the model run for one parameter set."""
 
     def __init__(self, signals: Mapping[str, np.ndarray], design: EhaParams, model: str,
-                 control_period: float, window: tuple[float, float] | None):
+                 control_period: float, window: tuple[float, float] | None,
+                 start: float | None = None):
         missing = [s for s in ('t', 'com', 'fr', 'psr') + SIGNALS
                    if s not in signals or not np.all(np.isfinite(signals[s]))]
         if missing:
@@ -160,15 +162,25 @@ class _Problem:
             raise TwinError(f'window {t0:g}:{t1:g} s lies outside the run [0, {t_last:g}] s '
                             '(T0 < T1 needed)')
         self.window = (float(t0), float(t1))
+        start = 0.0 if start is None else float(start)
+        if not 0.0 <= start <= t0 + 1e-9:
+            raise TwinError(f'start {start:g} s must lie in [0, {t0:g}] (the window start)')
         n_end = int(round(t1 * 1000))
+        n_start = int(round(start * 1000))
+        # the model runs from `start`, time shifted to 0, from the recorded jack state there
+        # (the spool and flapper from rest: they settle within milliseconds); a whole run
+        # starts at rest, where this is the rest state itself
+        self.initial = {s: float(signals[s][n_start]) for s in ('xj', 'dxj')}
         # inputs in force from each 1 ms row on (piecewise constant, as the twin holds them)
-        profiles = {s: Profile('steps', tuple(zip((ms[:n_end + 1] / 1000).tolist(),
-                                                  np.asarray(signals[s][:n_end + 1],
+        profiles = {s: Profile('steps', tuple(zip(((ms[n_start:n_end + 1] - n_start) / 1000
+                                                   ).tolist(),
+                                                  np.asarray(signals[s][n_start:n_end + 1],
                                                              dtype=float).tolist())))
                     for s in ('com', 'fr', 'psr')}
-        self.scenario = Scenario(name='recorded', duration=n_end / 1000, **profiles)
+        self.scenario = Scenario(name='recorded', duration=(n_end - n_start) / 1000, **profiles)
         keep = (ms >= int(round(t0 * 1000))) & (ms <= n_end)
         self.rows = np.flatnonzero(keep)
+        self.model_rows = self.rows - n_start
         self.recorded = {s: np.asarray(signals[s], dtype=float)[self.rows] for s in SIGNALS}
         self.t = t[self.rows]
         self.evaluations = 0
@@ -187,8 +199,8 @@ class _Problem:
             self.evaluations += 1
             try:
                 r = simulate(self.model, self.scenario, params=params,
-                             ecu_period=self.control_period)
-                self._runs[params] = {s: r[s][self.rows] for s in SIGNALS}
+                             ecu_period=self.control_period, initial=self.initial)
+                self._runs[params] = {s: r[s][self.model_rows] for s in SIGNALS}
             except ModelError:
                 self._runs[params] = None
         return self._runs[params]
@@ -267,13 +279,17 @@ def _healthy(fault: str) -> float:
 def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_period: float,
              model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
              window: tuple[float, float] | None = None, free: Sequence[str] = (),
-             bootstrap: int = 0, seed: int = 0, pairs: bool = False) -> Diagnosis:
+             bootstrap: int = 0, seed: int = 0, pairs: bool = False,
+             start: float | None = None) -> Diagnosis:
     """Fit every hypothesis and rank them (see the module docstring).
 
     :param signals: the run's 1 ms rows (``read_bag(...).signals``, ``simulate(...).signals``)
     :param design: the parameters the run was meant to have (a bag's provenance)
     :param control_period: the ECU's sampling period of the run [s]
     :param pairs: also fit every two of ``faults`` at once
+    :param start: run the model from this instant [s] (at most the window's start), from the
+        recorded XJ and DXJ there, instead of from t = 0: the cost of a fit is then that of
+        ``window end - start`` whatever the run's length (the live estimator's warm-up)
     """
     for f in faults:
         if f not in FAULTS:
@@ -291,7 +307,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     if pairs and len(faults) < 2:
         raise TwinError('--pairs needs at least two faults to pair')
     free = list(free)
-    problem = _Problem(signals, design, model, control_period, window)
+    problem = _Problem(signals, design, model, control_period, window, start)
     results = [((), *_fit(problem, (), free))]
     singles = {}
     for fault in faults:
