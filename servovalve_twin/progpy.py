@@ -49,6 +49,13 @@ from .physics.simulate import steps_per
 from .physics.valve_state import V_P1, V_P2, V_P12
 from .physics.valves import get_valve_model
 
+#: with ``scaled=True``, each state is carried divided by a power of two near its magnitude on
+#: the paper scenario (exact both ways: a scaled run is the unscaled one bit for bit), so that
+#: a covariance over states from 1e-5 m to 2e7 Pa stays well conditioned (progpy's
+#: UnscentedKalmanFilter factorises one; in SI units its Cholesky fails)
+STATE_SCALE = {'xf': 2.0 ** -15, 'dxf': 2.0 ** -6, 'xs': 2.0 ** -13, 'xj': 2.0 ** -5,
+               'dxj': 2.0 ** -2, 'p12_warm': 2.0 ** 24, 'p1': 2.0 ** 24, 'p2': 2.0 ** 24,
+               'p12': 2.0 ** 24}
 #: parameter sets kept per model: a particle filter's particles share few exact severities
 #: between resamplings, a deterministic run only one
 KERNEL_CACHE = 4096
@@ -65,6 +72,7 @@ class EhaModel(PrognosticsModel):
     :param degradation: catalog faults carried as degradation states
     :param params: the unit's nominal parameters (default :data:`~.physics.params.DEFAULTS`)
     :param control_period: the ECU's sampling period [s], a multiple of DT
+    :param scaled: carry the states divided by :data:`STATE_SCALE` (for a Kalman filter)
     :param kwargs: progpy parameters (``process_noise``, ``measurement_noise``, ...) and
         ``growth`` = {fault: severity per second}, ``x0`` = {fault: initial severity}
     """
@@ -74,7 +82,8 @@ class EhaModel(PrognosticsModel):
     outputs = ['xj', 'dxj', 'p12']
 
     def __init__(self, valve_model: str = 'SQ', degradation: Sequence[str] = ('leakage_growth',),
-                 params: EhaParams | None = None, control_period: float = 1e-3, **kwargs: Any):
+                 params: EhaParams | None = None, control_period: float = 1e-3,
+                 scaled: bool = False, **kwargs: Any):
         unknown = [f for f in degradation if f not in FAULTS]
         if unknown:
             raise ParameterError(f'unknown fault {unknown[0]!r}; expected one of '
@@ -88,6 +97,8 @@ class EhaModel(PrognosticsModel):
         self.states = list(PLANT_STATE) + ['p12_warm', *ports, 'p12', *self.degradation]
         self.events = [f'{f}_alarm' for f in self.degradation]
         self._limits = [(FAULTS[f].lo, FAULTS[f].hi) for f in self.degradation]
+        self._scale = np.array([STATE_SCALE.get(k, 1.0) if scaled else 1.0
+                                for k in self.states])[:, None]
         self._i_deg = [self.states.index(f) for f in self.degradation]
         self._i_ports = [self.states.index(p) for p in ports]
         self._i_p12 = self.states.index('p12')
@@ -174,7 +185,7 @@ class EhaModel(PrognosticsModel):
         run_tick(self.valve.id, col[:S_SIZE].copy(), vs.copy(), self._kernel(sev)[1], 0.0, 0.0,
                  psr, 0, out)
         col[self._i_p12] = out[0]
-        return self.StateContainer(col.reshape(-1, 1))
+        return self.StateContainer(col.reshape(-1, 1) / self._scale)
 
     def next_state(self, x, u, dt: float):
         periods = self._periods(dt)
@@ -182,11 +193,11 @@ class EhaModel(PrognosticsModel):
             return self.StateContainer(np.array(x.matrix, dtype=float))
         com, fr, psr = (float(np.ravel(u[k])[0]) for k in ('com', 'fr', 'psr'))
         growth_dt = np.array([self.parameters['growth'][f] * dt for f in self.degradation])
-        X = np.asarray(x.matrix, dtype=float)
+        X = np.asarray(x.matrix, dtype=float) * self._scale
         new = np.empty_like(X)
         for j in range(X.shape[1]):
             new[:, j] = self._advance(X[:, j], com, fr, psr, periods, growth_dt)
-        return self.StateContainer(new)
+        return self.StateContainer(new / self._scale)
 
     def apply_limits(self, x):
         """Each degradation within the catalog's bounds, silently: progpy's own limits warn at
@@ -197,7 +208,8 @@ class EhaModel(PrognosticsModel):
         return x
 
     def output(self, x):
-        X = np.asarray(x.matrix, dtype=float)
+        """XJ, DXJ, P12 in SI units (whether or not the states are scaled)."""
+        X = np.asarray(x.matrix, dtype=float) * self._scale
         return self.OutputContainer(X[[self.states.index('xj'), self.states.index('dxj'),
                                        self._i_p12]])
 
