@@ -6,9 +6,8 @@ PSR through the same compiled physics as ``simulate`` (ECU sampled at the run's 
 period), is fitted to the recorded XJ, DXJ and P12 once per hypothesis -- healthy, and each
 catalog fault (:data:`~..physics.faults.FAULTS`) with its severity free within the catalog's
 bounds, and with ``pairs`` each two faults at once -- by bounded nonlinear least squares
-(``scipy.optimize.least_squares``). Nuisance
-parameters the user names (``free``: M, CJ, ...) are estimated alongside, as factors on their
-design values in [0.5, 2].
+(``scipy.optimize.least_squares``). Nuisance parameters the user names (``free``: M, CJ, ...)
+are estimated alongside, as factors on their design values in [0.5, 2].
 
 Residuals. Each signal's residual is divided by a scale of what the model cannot follow
 (:data:`RESIDUAL_SCALE`: about the SQ model's RMS error against HD on the paper scenario), so
@@ -24,11 +23,11 @@ unit, each fault absorbing a little of the mismatch.
 Verdict. The best-ranked hypothesis, except that a fault fitted at less than
 :data:`DETECTABLE` (10 %) of the way from healthy to its catalog alarm severity is not reported
 over healthy: that small a fit is the model's mismatch (a healthy HD unit fits a null bias of
-2 % of the alarm value under SQ). A pair is reported only when both its faults are that large, and
-when its score is :data:`PAIR_EVIDENCE` (10) below each of its two single faults' -- a second
-fault absorbs some of SQ's mismatch against HD and wins by 1-7 points on units with one fault
-(measured), where units with two faults give 57-136. ``candidates`` keep every fit, in score order after the
-verdict.
+2 % of the alarm value under SQ). A pair is reported only when both its faults are that
+large, and when its score is :data:`PAIR_EVIDENCE` (10) below each of its two single faults'
+-- a second fault absorbs some of SQ's mismatch against HD and wins by 1-7 points on units
+with one fault (measured), where units with two faults give 57-136. ``candidates`` keep every
+fit, in score order after the verdict.
 
 Confidence. A severity's 95 % interval comes from the fit's Jacobian, ``cov = s^2
 (J^T J)^-1`` inflated by ``n/n_eff`` for the correlation (the catalog's bounds where the
@@ -40,8 +39,8 @@ verdict's interval is instead from N refits to the fitted signals plus moving bl
 of the residuals (percentiles).
 
 Pairs. A pair is named ``'a+b'`` (catalog order) and its ``severity`` and ``interval`` are
-lists, one entry per fault in that order. Its fit starts from the two single-fault optima (and
-from each alone), so that it costs about what one single fault costs.
+lists, one entry per fault in that order. Its fit starts from the best of the two single-fault
+optima and a :data:`PAIR_GRID` x :data:`PAIR_GRID` grid of both severities.
 
 The hypothesis holds over the whole simulated stretch, from t = 0 to the window's end: a flight
 with one degradation level (prognosis). A fault that appears mid-run is diagnosed on a window
