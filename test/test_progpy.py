@@ -46,9 +46,10 @@ def test_next_state_is_simulate_bit_for_bit(valve_model):
                           X[-1, [m.states.index(k) for k in ('xj', 'dxj', 'p12')]])
 
 
-def test_a_particle_filter_tracks_a_leak_growing_in_an_hd_twin():
-    """The twin's HD plant with its leakage growing from 2 to 18 x CLk between 0.2 and 0.9 s,
-    measured with noise (XJ 10 um, DXJ 1 mm/s, P12 50 kPa RMS); progpy's ParticleFilter on the
+def test_a_particle_filter_tracks_a_leak_growing_in_an_hd_twin(ros_context, tmp_path):
+    """The ROS twin's HD plant with its leakage growing from 2 to 18 x CLk between 0.2 and
+    0.9 s (a fault event every 10 ms), its bag read back and measured with noise (XJ 10 um,
+    DXJ 1 mm/s, P12 50 kPa RMS); progpy's ParticleFilter on the
     SQ model (200 particles, one estimate per 10 ms, leakage a random walk) must follow it:
     median error within 20 % from 0.3 s on (measured 11 %: SQ reads HD's leak low), low while
     the leak is small and high at the end. With the degradation not reaching the physics the
@@ -56,7 +57,12 @@ def test_a_particle_filter_tracks_a_leak_growing_in_an_hd_twin():
     truth = lambda t: 2.0 + 16.0 * min(1.0, max(0.0, (t - 0.2) / 0.7))  # noqa: E731
     events = [{'at': round(a, 3), 'fault': 'leakage_growth', 'severity': truth(a)}
               for a in np.arange(0.0, 1.0, 0.01)]
-    r = simulate('HD', dict(PAPER, faults=events), ecu_period=1e-3)
+    from servovalve_twin.bag.reader import read_bag
+    from servovalve_twin.twin import run_twin
+    run_twin('HD', dict(PAPER, faults=events), bag=tmp_path / 'leak', context=ros_context,
+             handle_signals=False, keep_values=False)
+    r = read_bag(tmp_path / 'leak').signals
+    assert len(r['t']) == 1001
     rng = np.random.default_rng(1)
     noise = {'xj': 1e-5, 'dxj': 1e-3, 'p12': 5e4}
     z = {k: r[k] + rng.normal(0.0, s, len(r[k])) for k, s in noise.items()}

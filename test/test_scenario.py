@@ -86,3 +86,16 @@ def test_builtin_scenario_parsed_once_but_never_shared():
     again = load_scenario('paper')
     assert 'M' not in again.params and again.windows
     assert again == load_scenario('paper')
+
+
+def test_numpy_numbers_in_a_scenario_become_plain_numbers():
+    """A scenario built in Python with numpy times (np.arange) goes into a bag's YAML
+    provenance: its fault entries must hold Python numbers, or the bag writer's YAML dump
+    fails mid-run."""
+    import yaml
+    from servovalve_twin.physics.scenario import scenario_from_dict
+    scn = scenario_from_dict({'duration': 0.1, 'faults': [
+        {'at': np.float64(0.05), 'fault': 'leakage_growth', 'severity': np.float64(3.0)}]})
+    entry = scn.to_dict()['faults'][0]
+    assert type(entry['at']) is float and type(entry['severity']) is float
+    assert yaml.safe_load(yaml.safe_dump(scn.to_dict()))['faults'][0]['at'] == 0.05

@@ -282,10 +282,17 @@ def scenario_from_dict(raw: Mapping[str, Any], name: str = 'scenario') -> Scenar
                             '{at, param, value} entries')
     scenario = Scenario(name=str(raw.get('name', name)), duration=duration, params=params,
                         windows=windows, description=str(raw.get('description', '')),
-                        faults=tuple(dict(f) if isinstance(f, Mapping) else f for f in faults),
+                        faults=tuple({str(k): _plain(v) for k, v in f.items()}
+                                     if isinstance(f, Mapping) else f for f in faults),
                         **profiles)
     scenario.fault_events(make_params(params))          # validate now, with the defaults
     return scenario
+
+
+def _plain(value: Any) -> Any:
+    """A numpy scalar as the Python number it holds (a scenario built in Python with numpy
+    times is written into a bag's YAML provenance, which takes plain numbers only)."""
+    return value.item() if isinstance(value, np.generic) else value
 
 
 def as_scenario(spec: Mapping[str, Any] | Scenario) -> Scenario:
