@@ -76,3 +76,16 @@ def test_bad_fmu_input_is_one_line_and_exit_2(fmus, tmp_path, capsys):
         assert fragment in err and err.count('\n') == 1 and 'Traceback' not in err, err
     assert existing.read_bytes() == before
     assert not list(tmp_path.iterdir())
+
+
+def test_the_fmu_refuses_steps_and_periods_it_cannot_take(fmus):
+    """A control period that is not a multiple of DT fails the initialization, and a
+    communication step that is not a whole number of control periods fails the step -- an
+    error, not a discard that a master could take for a shorter step."""
+    from fmpy.fmi1 import FMICallException
+    fmu = str(fmus / 'SQ.fmu')
+    with pytest.raises(FMICallException, match='ExitInitializationMode'):
+        simulate_fmu(fmu, stop_time=0.01, step_size=1e-3,
+                     start_values={'control_period': 1.5e-5})
+    with pytest.raises(FMICallException, match='DoStep'):
+        simulate_fmu(fmu, stop_time=0.01, step_size=1.5e-3)

@@ -72,9 +72,10 @@ class EhaFmu(Fmi2Slave):
     def do_step(self, current_time, step_size):
         periods = round(step_size / self.control_period)
         if periods < 1 or abs(step_size - periods * self.control_period) > 1e-9 * step_size:
-            self.log(f'step {step_size} s is not a whole number of control periods '
-                     f'({self.control_period} s)')
-            return False
+            # an error, not a discard: a master that took a discard for a shorter step would
+            # get outputs that no whole control period produced
+            raise ValueError(f'step {step_size} s is not a whole number of control periods '
+                             f'({self.control_period} s)')
         plant = self._plant
         for _ in range(periods):
             cor = plant.control(self.com, plant.xj)
