@@ -109,6 +109,39 @@ def test_the_estimator_keeps_its_cost_bounded_on_a_long_run():
     assert len(alg.rows['t']) <= 951
 
 
+def test_the_bootstrap_interval_is_the_spread_of_repeated_flights():
+    """--bootstrap against its independent reference, repeated experiments: an SQ unit with
+    leakage 10 x measured with white noise (0.2 mm, 3 mm/s, 0.2 MPa) twenty times over, each
+    fitted; the 95 % spread of those fits (measured width 0.030) must match the width of one
+    flight's 20-refit block-bootstrap interval within a factor 2.5 (measured 0.021), which
+    holds that flight's own fit, and so must the width of its default interval (Jacobian
+    and likelihood ratio, measured 0.028: the residuals' own correlation, here none, sets its
+    inflation). Refits to unperturbed signals, residuals resampled wrongly, severities not
+    refitted or an inflation read from another hypothesis' residuals (the healthy one's, 5 x
+    too wide here) would fail."""
+    run = simulate('SQ', _faulty('leakage_growth', 10.0), ecu_period=1e-3)
+    noise = {'xj': 2e-4, 'dxj': 3e-3, 'p12': 2e5}
+
+    def flight(seed):
+        rng = np.random.default_rng(seed)
+        sig = dict(run.signals)
+        for k, sd in noise.items():
+            sig[k] = sig[k] + rng.normal(0.0, sd, len(sig[k]))
+        return sig
+
+    kw = dict(control_period=1e-3, model='SQ', faults=['leakage_growth'])
+    fits = [diagnose(flight(s), DEFAULTS, **kw).best for s in range(1, 21)]
+    lo, hi = np.percentile([f.severity for f in fits], [2.5, 97.5])
+    jlo, jhi = fits[0].interval
+    assert jlo <= fits[0].severity <= jhi
+    assert (hi - lo) / 2.5 < jhi - jlo < (hi - lo) * 2.5
+    d = diagnose(flight(1), DEFAULTS, bootstrap=20, **kw)
+    blo, bhi = d.best.interval
+    print('repeated', hi - lo, 'bootstrap', bhi - blo)
+    assert blo <= d.best.severity <= bhi
+    assert (hi - lo) / 2.5 < bhi - blo < (hi - lo) * 2.5
+
+
 def test_a_healthy_hd_unit_is_called_healthy():
     """SQ's mismatch against HD fits a small null bias (2 % of its alarm value) better than
     nothing; the verdict must still be healthy, with every fit kept in the candidates."""

@@ -30,8 +30,10 @@ with one fault (measured), where units with two faults give 57-136. ``candidates
 fit, in score order after the verdict.
 
 Confidence. A severity's 95 % interval comes from the fit's Jacobian, ``cov = s^2
-(J^T J)^-1`` inflated by ``n/n_eff`` for the correlation (the catalog's bounds where the
-residuals do not move with the severity at the fit). The verdict's is joined with the
+(J^T J)^-1`` inflated by ``n/n_eff`` for the correlation -- ``n_eff`` here from the
+hypothesis' own residuals: about ``n`` for a fit that leaves only white noise, so that the
+interval is then the spread of repeated flights (tested) -- or the catalog's bounds where the
+residuals do not move with the severity at the fit. The verdict's is joined with the
 likelihood-ratio interval along its severity (:func:`_ratio_interval`): a fit that stops on a
 flat stretch of the cost -- static friction beyond the break-away the run reaches -- has a
 zero Jacobian there and a Jacobian interval of zero width. With ``bootstrap`` = N, the
@@ -334,7 +336,10 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         k = len(x)
         score = n_eff * math.log(max(rss, 1e-300) / n) + k * math.log(n_eff)
         sevs = [float(v) for v in x[:len(hyp)]]
-        intervals = [_jacobian_interval(f, i, x, res, jac, n, n_eff) or (FAULTS[f].lo,
+        # the interval's correlation is that of the hypothesis' own residuals: white where
+        # the model fits but for noise, strongly correlated where it cannot follow
+        n_own = _effective_n(res, len(SIGNALS))
+        intervals = [_jacobian_interval(f, i, x, res, jac, n, n_own) or (FAULTS[f].lo,
                                                                            FAULTS[f].hi)
                      for i, f in enumerate(hyp)]
         freev = dict(zip(free, x[len(hyp):].tolist()))
@@ -359,7 +364,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     candidates.insert(0, best)
     if best.fault != HEALTHY:
         hyp, x, res, jac = next(r for r in results if '+'.join(r[0]) == best.fault)
-        ivs = [_ratio_interval(problem, hyp, i, x, free, res, n, n_eff, jac)
+        n_own = _effective_n(res, len(SIGNALS))
+        ivs = [_ratio_interval(problem, hyp, i, x, free, res, n, n_own, jac)
                for i in range(len(hyp))]
         best.interval = ivs[0] if len(ivs) == 1 else ivs
     if bootstrap and best.fault != HEALTHY:
