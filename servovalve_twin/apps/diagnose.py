@@ -39,7 +39,8 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     """Diagnose a recorded run with the parameters and control period it was recorded with."""
     run = read_bag(bag)
     return diagnose(run.signals, bag_params(run), control_period=run.control_period or 1e-3,
-                    model=model, faults=faults, window=window, free=free, bootstrap=bootstrap, pairs=pairs)
+                    model=model, faults=faults, window=window, free=free, bootstrap=bootstrap,
+                    pairs=pairs)
 
 
 def plot_diagnosis(d: Diagnosis, path: str | Path) -> None:

@@ -95,9 +95,9 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     :param overrides: parameter name -> value, applied after the scenario's own ``params``
     :param ecu_period: sample the ECU with this period [s] (a multiple of DT); None = continuous
     :param params: base parameters (default :data:`~.params.DEFAULTS`)
-    :param initial: the plant state at t = 0 by name (:data:`~.servovalve.PLANT_STATE`: ``xf``, ``dxf``,
-        ``xs``, ``xj``, ``dxj``; the others at rest): a run that continues from a recorded
-        instant (a diagnosis over a window); the valve state starts afresh
+    :param initial: the plant state at t = 0 by name (:data:`~.servovalve.PLANT_STATE`:
+        ``xf``, ``dxf``, ``xs``, ``xj``, ``dxj``; the others at rest): a run that continues
+        from a recorded instant (a diagnosis over a window); the valve state starts afresh
     :raises TwinError: bad model name, parameter, scenario, period; valve failure
     """
     model = get_valve_model(valve_model)
@@ -116,9 +116,9 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
         if name not in PLANT_STATE:
             raise ParameterError(f'initial: unknown plant state {name!r}; expected some of '
                                  f'{list(PLANT_STATE)}')
-        if not math.isfinite(value):
-            raise ParameterError(f'initial {name} must be finite, got {value!r}')
-        s[PLANT_STATE.index(name)] = value
+        if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value)):
+            raise ParameterError(f'initial {name} must be a finite number, got {value!r}')
+        s[PLANT_STATE.index(name)] = float(value)
     vs = model.initial_state(p)
     carry = np.zeros(2)             # Cor and the parameter segment, carried between chunks
     # one buffer for the chunk's times and one per input, reused chunk after chunk
