@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import heapq
+import inspect
 import sqlite3
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -255,9 +256,16 @@ def _mcap_messages(f, keep, start_ns, end_ns, topics_out):
             check_data_crc(f)
         with open(f, 'rb') as fh:
             reader = make_reader(fh, validate_crcs=True)
+            # mcap 1.6 names the bounds starting_at / ending_at (inclusive) and deprecates
+            # start_time / end_time (end exclusive), which older releases alone have
+            if 'starting_at' in inspect.signature(reader.iter_messages).parameters:
+                span = dict(starting_at=start_ns, ending_at=end_ns)
+            else:
+                span = dict(start_time=start_ns,
+                            end_time=None if end_ns is None else end_ns + 1)
             for schema, ch, msg in reader.iter_messages(
-                    topics=None if keep is None else sorted(keep), start_time=start_ns,
-                    end_time=None if end_ns is None else end_ns + 1, log_time_order=True):
+                    topics=None if keep is None else sorted(keep), log_time_order=True,
+                    **span):
                 if topics_out is not None and ch.topic not in topics_out:
                     topics_out[ch.topic] = _topic_info(ch, schema)
                 yield ch.topic, msg.log_time, bytes(msg.data)
