@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-import yaml
 
 from servovalve_twin.cli import main
 from servovalve_twin.errors import TwinError
