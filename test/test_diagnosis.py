@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from servovalve_twin.cli import main
-from servovalve_twin.errors import TwinError
 from servovalve_twin.config import load_scenario
+from servovalve_twin.errors import TwinError
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, diagnose
@@ -221,7 +221,6 @@ def test_exponential_trend_is_chosen_when_it_fits():
 
 
 def test_prognosis_refuses_fewer_than_three_flights():
-    from servovalve_twin.errors import TwinError
     with pytest.raises(TwinError, match='at least three flights'):
         prognose([dict(cycles=0, severity=1.0, interval=[0.9, 1.1])] * 2, 'leakage_growth')
 
