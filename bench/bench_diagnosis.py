@@ -29,6 +29,7 @@ from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.faults import FAULTS, resolve
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, HEALTHY, diagnose
+from servovalve_twin.prognostics.sweep import draw_nuisance, measured
 from servovalve_twin.runs import simulate
 
 VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}
@@ -40,24 +41,14 @@ def one(job):
     """Fly one unit and diagnose it: (fault, truth, verdict, severity, interval, seconds)."""
     fault, seed, free = job
     rng = np.random.default_rng(seed)
-    unit = DEFAULTS.replace(**{k: DEFAULTS.value(k) * (1 + rng.uniform(-s, s))
-                               for k, s in VARY.items()})
-    if unit.FDJ > unit.FSJ:
-        unit = unit.replace(FSJ=unit.FDJ)
+    unit = DEFAULTS.replace(**draw_nuisance(rng, VARY, DEFAULTS))
     scn = load_scenario('paper').to_dict()
     truth = None
     if fault != HEALTHY:
         spec = FAULTS[fault]
         scn['faults'] = [{'at': 0.0, 'fault': fault, 'severity': spec.demo}]
-        faulty = resolve(fault, spec.demo, unit)[spec.param]
-        design = DEFAULTS.value(spec.param)
-        if spec.kind == 'value':
-            truth = faulty
-        else:
-            truth = faulty / design if spec.kind == 'scale' else 1.0 - faulty / design
-    sig = dict(simulate('HD', scn, params=unit, ecu_period=1e-3).signals)
-    for k, sd in NOISE.items():
-        sig[k] = sig[k] + rng.normal(0.0, sd, sig[k].shape)
+        truth = spec.severity_of(DEFAULTS, resolve(fault, spec.demo, unit)[spec.param])
+    sig = measured(simulate('HD', scn, params=unit, ecu_period=1e-3).signals, NOISE, rng)
     t = time.perf_counter()
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=free)
     wall = time.perf_counter() - t

@@ -32,6 +32,7 @@ from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.diagnosis import diagnose
 from servovalve_twin.prognostics.prognosis import prognose
+from servovalve_twin.prognostics.sweep import draw_nuisance, measured
 from servovalve_twin.runs import simulate
 
 VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}
@@ -46,11 +47,8 @@ def flight(unit_params, severity, rng):
     """One flight of a unit: HD with its parameters and leakage, measured with noise."""
     scn = dict(load_scenario('paper').to_dict(),
                faults=[{'at': 0.0, 'fault': 'leakage_growth', 'severity': severity}])
-    run = simulate('HD', scn, params=unit_params, ecu_period=1e-3)
-    sig = dict(run.signals)
-    for k, sd in NOISE.items():
-        sig[k] = sig[k] + rng.normal(0.0, sd, sig[k].shape)
-    return sig
+    return measured(simulate('HD', scn, params=unit_params, ecu_period=1e-3).signals, NOISE,
+                    rng)
 
 
 def main() -> None:
@@ -63,10 +61,7 @@ def main() -> None:
     t0 = time.perf_counter()
     rows, units = [], []
     for u in range(args.units):
-        unit = DEFAULTS.replace(**{k: DEFAULTS.value(k) * (1 + rng.uniform(-s, s))
-                                   for k, s in VARY.items()})
-        if unit.FDJ > unit.FSJ:
-            unit = unit.replace(FSJ=unit.FDJ)
+        unit = DEFAULTS.replace(**draw_nuisance(rng, VARY, DEFAULTS))
         eol = float(rng.uniform(30, 50))
         rate = math.log(ALARM) / eol                  # severity = exp(rate * n): 1 at n = 0
         checkpoints = {lam: int(round(lam * eol)) for lam in LAMBDAS}

@@ -35,6 +35,20 @@ class FaultSpec:
     meaning: str
     demo: float            # the documented severity at which the monitor must raise an alarm
 
+    @property
+    def healthy(self) -> float:
+        """The severity that leaves the unit as it is: 1 for a multiplier, 0 otherwise."""
+        return 1.0 if self.kind == 'scale' else 0.0
+
+    def severity_of(self, nominal: EhaParams, value: float) -> float:
+        """The inverse of :meth:`value`: the severity at which the parameter is ``value``,
+        read against ``nominal`` (no bounds checked: a unit's own parameter read against its
+        design may lie beyond them)."""
+        if self.kind == 'value':
+            return float(value)
+        ratio = float(value) / nominal.value(self.param)
+        return ratio if self.kind == 'scale' else 1.0 - ratio
+
     def value(self, nominal: EhaParams, severity: float) -> float:
         if not self.lo <= severity <= self.hi:
             raise TwinError(f'fault {self.name}: severity {severity!r} {self.unit} is out of '

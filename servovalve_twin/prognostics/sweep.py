@@ -115,6 +115,24 @@ def _algorithm_case(case: Case, run, design):
     return features, traces, res.first(ERROR), res.first(WARN)
 
 
+def draw_nuisance(rng: np.random.Generator, vary: Mapping[str, float], nominal
+                  ) -> dict[str, float]:
+    """One unit's parameters drawn around ``nominal``: each of ``vary`` (name -> relative
+    spread) uniform within +-spread of its nominal value, in ``vary``'s order."""
+    return {name: float(nominal.value(name) * (1.0 + rng.uniform(-spread, spread)))
+            for name, spread in vary.items()}
+
+
+def measured(signals: Mapping[str, np.ndarray], noise: Mapping[str, float],
+             rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The run's signals as a sensor reads them: white Gaussian noise of ``noise`` (signal ->
+    RMS, SI units) added to those signals, the others as they are."""
+    out = dict(signals)
+    for k, sd in noise.items():
+        out[k] = out[k] + rng.normal(0.0, sd, out[k].shape)
+    return out
+
+
 def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
                scenario: Any = 'paper', faults: Mapping[str, Sequence[float]] | None = None,
                nominal_runs: int = 1, repeats: int = 1, draws: int = 0,
@@ -146,8 +164,7 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
 
     def draw_params() -> dict[str, float]:
         p = {k: float(v) for k, v in (base or {}).items()}
-        for name, spread in (vary or {}).items():
-            p[name] = float(nominal.value(name) * (1.0 + rng.uniform(-spread, spread)))
+        p.update(draw_nuisance(rng, vary or {}, nominal))
         make_params(p, base=nominal)                      # validate the draw
         return p
 
