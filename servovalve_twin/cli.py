@@ -276,22 +276,14 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     b = d.best
     what = 'healthy' if b.severity is None else ', '.join(
         f'{f}, severity {s:.4g} (95 % [{i[0]:.4g}, {i[1]:.4g}])'
-        for f, s, i in zip(b.faults, *_per_fault(b)))
+        for f, s, i in zip(b.faults, b.severities, b.intervals))
     print(f'{args.bag}: {what} -- {len(d.candidates)} hypotheses, {d.evaluations} model runs '
           f'with {d.model} in {wall:.2f} s -> {args.json}')
     for c in d.candidates:
-        sev = '' if c.severity is None else ' ' + '/'.join(f'{s:.4g}'
-                                                          for s in _per_fault(c)[0])
+        sev = ' ' + '/'.join(f'{s:.4g}' for s in c.severities) if c.severities else ''
         extra = ''.join(f' {k}x{v:.3f}' for k, v in c.free.items())
         print(f'  {c.fault:24s}{sev:>10s}  score {c.score:10.1f}{extra}')
     return 0
-
-
-def _per_fault(c) -> tuple[list, list]:
-    """A candidate's severities and intervals as lists (a pair has two of each)."""
-    if isinstance(c.severity, list):
-        return c.severity, c.interval
-    return [c.severity], [c.interval]
 
 
 def cmd_prognose(args: argparse.Namespace) -> int:

@@ -42,10 +42,10 @@ from progpy import PrognosticsModel
 from .errors import ModelError, ParameterError
 from .physics.ecu import ecu_current_py
 from .physics.faults import FAULTS, combine
-from .physics.params import DEFAULTS, KERNEL_DTYPE, EhaParams
+from .physics.params import DEFAULTS, EhaParams, kernel_as_array
 from .physics.plant import TICK_OUT, run_tick
 from .physics.servovalve import PLANT_STATE, S_SIZE, S_XJ
-from .physics.simulate import steps_per
+from .physics.simulate import steps_per, valve_response
 from .physics.valve_state import V_P1, V_P2, V_P12
 from .physics.valves import get_valve_model
 
@@ -59,10 +59,6 @@ STATE_SCALE = {'xf': 2.0 ** -15, 'dxf': 2.0 ** -6, 'xs': 2.0 ** -13, 'xj': 2.0 *
 #: parameter sets kept per model: a particle filter's particles share few exact severities
 #: between resamplings, a deterministic run only one
 KERNEL_CACHE = 4096
-
-
-def _healthy(fault: str) -> float:
-    return 1.0 if FAULTS[fault].kind == 'scale' else 0.0
 
 
 class EhaModel(PrognosticsModel):
@@ -114,7 +110,7 @@ class EhaModel(PrognosticsModel):
         kwargs.setdefault('process_noise', {k: 0.0 for k in self.states})
         super().__init__(**kwargs)
         self.parameters['growth'] = {f: float(growth.get(f, 0.0)) for f in self.degradation}
-        self.parameters['x0'] = {f: float(x0.get(f, _healthy(f))) for f in self.degradation}
+        self.parameters['x0'] = {f: float(x0.get(f, FAULTS[f].healthy)) for f in self.degradation}
 
     # -- the physics -----------------------------------------------------------------------
     def _kernel(self, severities: tuple[float, ...]):
@@ -125,7 +121,7 @@ class EhaModel(PrognosticsModel):
                 self._kernels.clear()
             p = combine(self.nominal, dict(zip(self.degradation, severities)))
             kern = self.valve.kernel(p)
-            k = self._kernels[severities] = (kern, np.array([tuple(kern)], dtype=KERNEL_DTYPE))
+            k = self._kernels[severities] = (kern, kernel_as_array(kern))
         return k
 
     def _advance(self, col: np.ndarray, com: float, fr: float, psr: float, periods: int,
@@ -140,23 +136,26 @@ class EhaModel(PrognosticsModel):
         if self._i_ports:
             vs[V_P1], vs[V_P2] = col[self._i_ports[0]], col[self._i_ports[1]]
         out = np.empty(len(TICK_OUT))
-        cor = 0.0
         for _ in range(periods):
             cor = ecu_current_py(com, float(s[S_XJ]), kern)
             if run_tick(self.valve.id, s, vs, arr, cor, fr, psr, self.n_sub, out) >= 0:
                 raise ModelError(f'valve model {self.valve.name} failed to converge')
         new = np.empty_like(col)
         new[:S_SIZE] = s
-        new[self._i_warm] = vs[V_P12]
-        if self._i_ports:
-            new[self._i_ports[0]], new[self._i_ports[1]] = vs[V_P1], vs[V_P2]
-        # the valve's response at the new state, on copies: the run's own warm start and
-        # counters stay those of the integration steps, as in simulate()
-        run_tick(self.valve.id, s.copy(), vs.copy(), arr, cor, fr, psr, 0, out)
-        new[self._i_p12] = out[0]
+        self._put_valve(new, vs, arr, fr, psr)
         for i, v in zip(self._i_deg, sev):
             new[i] = v
         return new
+
+    def _put_valve(self, col: np.ndarray, vs: np.ndarray, arr: np.ndarray, fr: float,
+                   psr: float) -> None:
+        """The valve's own state into ``col``, and P12: its response at ``col``'s plant state
+        (on copies, so the run's warm start stays that of its integration steps, as in
+        simulate())."""
+        col[self._i_warm] = vs[V_P12]
+        if self._i_ports:
+            col[self._i_ports[0]], col[self._i_ports[1]] = vs[V_P1], vs[V_P2]
+        col[self._i_p12] = valve_response(self.valve.id, col[:S_SIZE], vs, arr, fr, psr)[0]
 
     def _periods(self, dt: float) -> int:
         """``dt`` in control periods. progpy's estimators add their steps up in floating
@@ -173,18 +172,12 @@ class EhaModel(PrognosticsModel):
         """At rest (the state every run starts from), each degradation at ``x0``; P12 is the
         valve's response at rest to ``u``'s supply (the nominal PSRN without ``u``)."""
         col = np.zeros(len(self.states))
-        vs = self.valve.initial_state(self.nominal)
-        col[self._i_warm] = vs[V_P12]
-        if self._i_ports:
-            col[self._i_ports[0]], col[self._i_ports[1]] = vs[V_P1], vs[V_P2]
         sev = tuple(self.parameters['x0'][f] for f in self.degradation)
         for i, v in zip(self._i_deg, sev):
             col[i] = v
         psr = float(np.ravel(u['psr'])[0]) if u is not None else self.nominal.PSRN
-        out = np.empty(len(TICK_OUT))
-        run_tick(self.valve.id, col[:S_SIZE].copy(), vs.copy(), self._kernel(sev)[1], 0.0, 0.0,
-                 psr, 0, out)
-        col[self._i_p12] = out[0]
+        self._put_valve(col, self.valve.initial_state(self.nominal), self._kernel(sev)[1], 0.0,
+                        psr)
         return self.StateContainer(col.reshape(-1, 1) / self._scale)
 
     def next_state(self, x, u, dt: float):
@@ -215,8 +208,8 @@ class EhaModel(PrognosticsModel):
 
     def _progress(self, x) -> dict[str, np.ndarray]:
         """Each degradation's way from healthy (0) to its alarm severity (1)."""
-        return {f: (np.asarray(x[f], dtype=float) - _healthy(f))
-                / (FAULTS[f].demo - _healthy(f)) for f in self.degradation}
+        return {f: (np.asarray(x[f], dtype=float) - FAULTS[f].healthy)
+                / (FAULTS[f].demo - FAULTS[f].healthy) for f in self.degradation}
 
     def event_state(self, x) -> dict:
         return {f'{f}_alarm': np.clip(1.0 - p, 0.0, 1.0) for f, p in self._progress(x).items()}

@@ -49,9 +49,8 @@ def plot_diagnosis(d: Diagnosis, path: str | Path) -> None:
     runs = {'recorded': d.recorded}
     best = d.best
     if best.fault != HEALTHY:
-        sev = best.severity if isinstance(best.severity, list) else [best.severity]
-        runs[f'{best.fault} {"/".join(f"{s:.4g}" for s in sev)} ({d.model})'] = dict(
-            best.fitted, t=t)
+        sevs = '/'.join(f'{s:.4g}' for s in best.severities)
+        runs[f'{best.fault} {sevs} ({d.model})'] = dict(best.fitted, t=t)
     healthy = next(c for c in d.candidates if c.fault == HEALTHY)
     runs[f'healthy ({d.model})'] = dict(healthy.fitted, t=t)
     plot_overlay(runs, path, title=f'diagnosis: {best.fault}', reference='recorded',

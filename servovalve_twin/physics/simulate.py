@@ -153,6 +153,16 @@ def _fault_segments(model: ValveModel, scn: Scenario, p: EhaParams
     return np.concatenate(rows), np.array(start, dtype=np.int64)
 
 
+def valve_response(model_id: int, s: np.ndarray, vs: np.ndarray, kernel_arr: np.ndarray,
+                   fr: float, psr: float) -> np.ndarray:
+    """P12, QJ, P1, P2 of the valve at the plant state ``s`` for supply ``psr``, evaluated on
+    copies of the states: the run continues as if it had not been asked (a valve's warm start
+    and counters stay those of its integration steps)."""
+    out = np.full(len(TICK_OUT), np.nan)
+    run_tick(model_id, s.copy(), vs.copy(), kernel_arr, 0.0, float(fr), float(psr), 0, out)
+    return out
+
+
 class EhaPlant:
     """The plant as an object advanced one control period at a time (the ROS plant's physics).
 
@@ -218,13 +228,8 @@ class EhaPlant:
         return self.last        # P1, P2: NaN for a model without ports (its state holds NaN)
 
     def response(self, fr: float, psr: float) -> np.ndarray:
-        """P12, QJ, P1, P2 at the current state for supply ``psr``, evaluated on copies of the
-        state: the run continues as if it had not been asked (a valve's warm start and counters
-        are those of its integration steps)."""
-        out = np.full(len(TICK_OUT), np.nan)
-        run_tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0,
-                 float(fr), float(psr), 0, out)
-        return out
+        """P12, QJ, P1, P2 at the current state for supply ``psr`` (:func:`valve_response`)."""
+        return valve_response(self.model.id, self.s, self.vs, self._kernel_arr, fr, psr)
 
     def compile(self) -> None:
         """Compile the tick loop for the current model now (numba compiles on first call),
@@ -236,5 +241,5 @@ class EhaPlant:
         return self.model.run_totals(self.vs)
 
 
-__all__ = ['simulate', 'RunResult', 'EhaPlant', 'effective_params', 'CSV_COLUMNS',
-           'PORT_COLUMNS', 'SIGNAL_UNITS']
+__all__ = ['simulate', 'RunResult', 'EhaPlant', 'valve_response', 'effective_params',
+           'CSV_COLUMNS', 'PORT_COLUMNS', 'SIGNAL_UNITS']

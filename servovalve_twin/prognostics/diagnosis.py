@@ -103,6 +103,20 @@ class Candidate:
         """The catalog faults of the hypothesis: () for healthy, one, or two for a pair."""
         return () if self.fault == HEALTHY else tuple(self.fault.split('+'))
 
+    @property
+    def severities(self) -> list[float]:
+        """One severity per fault of :attr:`faults` (a single fault's as a list of one)."""
+        if self.severity is None:
+            return []
+        return self.severity if isinstance(self.severity, list) else [self.severity]
+
+    @property
+    def intervals(self) -> list[tuple[float, float]]:
+        """One interval per fault of :attr:`faults`."""
+        if self.interval is None:
+            return []
+        return self.interval if isinstance(self.interval, list) else [self.interval]
+
     def to_json(self) -> dict[str, Any]:
         return dict(fault=self.fault, severity=self.severity,
                     interval=_interval_json(self.interval), score=self.score)
@@ -258,7 +272,7 @@ def _fit(problem: _Problem, faults: Sequence[str], free: Sequence[str],
     if starts is None:
         design = [1.0] * len(free)
         starts = [[g] + design for g in _start_grid(faults[0])] if nf == 1 else [
-            [_healthy(f) for f in faults] + design]
+            [FAULTS[f].healthy for f in faults] + design]
     starts = [np.clip(np.asarray(x, dtype=float), lo, hi) for x in starts]
     if len(starts) > 1:
         costs = [float(np.sum(fun(x) ** 2)) for x in starts]
@@ -269,12 +283,6 @@ def _fit(problem: _Problem, faults: Sequence[str], free: Sequence[str],
     sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-3,
                         method='trf', xtol=1e-6, ftol=1e-8, max_nfev=60 * max(1, nf))
     return sol.x, sol.fun, sol.jac
-
-
-def _healthy(fault: str) -> float:
-    """The severity at which ``fault`` leaves the unit as it is."""
-    f = FAULTS[fault]
-    return 1.0 if f.kind == 'scale' else 0.0
 
 
 def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_period: float,
@@ -376,14 +384,10 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                                                                     t=problem.t))
 
 
-def _severities(c: Candidate) -> list[float]:
-    return c.severity if isinstance(c.severity, list) else [c.severity]
-
-
 def _detectable(c: Candidate) -> bool:
     """Every fault of ``c`` at least DETECTABLE of the way from healthy to its alarm value."""
-    return all(abs(s - _healthy(f)) >= DETECTABLE * abs(FAULTS[f].demo - _healthy(f))
-               for f, s in zip(c.faults, _severities(c)))
+    return all(abs(s - FAULTS[f].healthy) >= DETECTABLE * abs(FAULTS[f].demo - FAULTS[f].healthy)
+               for f, s in zip(c.faults, c.severities))
 
 
 def _jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
@@ -468,7 +472,7 @@ def _bootstrap_intervals(problem: _Problem, best: Candidate, free: list[str], n:
     m = len(problem.rows)
     resid = {s: problem.recorded[s] - best.fitted[s] for s in SIGNALS}
     sev = []
-    start = _severities(best) + [best.free[k] for k in free]
+    start = best.severities + [best.free[k] for k in free]
     for _ in range(n):
         starts = rng.integers(0, max(1, m - BLOCK_ROWS), size=-(-m // BLOCK_ROWS))
         idx = np.concatenate([np.arange(a, a + BLOCK_ROWS) for a in starts])[:m] % m
