@@ -271,6 +271,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                      pairs=args.pairs)
     wall = time.perf_counter() - t
     write_json(args.json, d.to_json())
+    for w in d.warnings:
+        print(f'servovalve-twin diagnose: warning: {w}', file=sys.stderr)
     if args.plot:
         plot_diagnosis(d, args.plot)
     b = d.best
@@ -405,15 +407,19 @@ def cmd_play(args: argparse.Namespace) -> int:
 def cmd_reindex(args: argparse.Namespace) -> int:
     from .bag.reindex import reindex
     meta = reindex(args.bag)
-    rep = meta['report']
     print(f'{args.bag}: rebuilt, {meta["message_count"]} messages over '
           f'{meta["duration"]["nanoseconds"] * 1e-9:.3f} s in '
           f'{len(meta["topics_with_message_count"])} topics')
-    if rep['skipped_bytes'] or rep['dropped_messages']:
-        where = (f'{rep["skipped_bytes"]} bytes from byte {rep["stopped_at"]}'
-                 if rep['stopped_at'] is not None else 'from a damaged record on')
-        print(f'{args.bag}: skipped {where} ({rep["reason"]}) and '
-              f'{rep["dropped_messages"]} messages of unknown channels', file=sys.stderr)
+    for rep in meta['report']['files']:
+        for d in rep['damaged']:
+            print(f'{args.bag}: {rep["file"]}: skipped {d["bytes"]} bytes from byte {d["at"]} '
+                  f'({d["reason"]})', file=sys.stderr)
+        if rep['dropped_messages']:
+            print(f'{args.bag}: {rep["file"]}: dropped {rep["dropped_messages"]} messages of '
+                  'channels it does not describe', file=sys.stderr)
+        if rep.get('original_kept_as'):
+            print(f'{args.bag}: {rep["file"]}: the damaged original is kept as '
+                  f'{rep["original_kept_as"]}', file=sys.stderr)
     return 0
 
 

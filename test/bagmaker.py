@@ -61,8 +61,10 @@ def _qos(topic: str, version: int):
 
 
 def write_bag(directory: Path, *, storage: str = 'mcap', version: int = 9, split: int = 1,
-              compression: str = 'none', msgs=None) -> list:
-    """Write a bag directory; returns the messages written (in log-time order)."""
+              compression: str = 'none', msgs=None, provenance=None) -> list:
+    """Write a bag directory; returns the messages written (in log-time order).
+    ``provenance``: the twin's record, as an MCAP metadata record in the first file, or for
+    sqlite3 (no metadata records) in metadata.yaml's custom_data (versions >= 6)."""
     directory.mkdir(parents=True)
     msgs = msgs if msgs is not None else messages()
     types = {}
@@ -74,8 +76,11 @@ def write_bag(directory: Path, *, storage: str = 'mcap', version: int = 9, split
     for i, part in enumerate(parts):
         f = directory / f'{directory.name}_{i}{ext}'
         files.append(f.name)
-        (_write_mcap if storage == 'mcap' else _write_sqlite)(f, part, types, version,
-                                                            compression)
+        record = provenance if i == 0 and storage == 'mcap' else None
+        if storage == 'mcap':
+            _write_mcap(f, part, types, version, compression, record)
+        else:
+            _write_sqlite(f, part, types, version, compression)
     counts = {t: sum(1 for m in msgs if m[0] == t) for t in types}
     info = dict(version=version, storage_identifier=storage,
                 duration={'nanoseconds': msgs[-1][2] - msgs[0][2]},
@@ -86,12 +91,15 @@ def write_bag(directory: Path, *, storage: str = 'mcap', version: int = 9, split
                     offered_qos_profiles=_qos(t, version)), message_count=counts[t])
                     for t in types],
                 compression_format='', compression_mode='', relative_file_paths=files)
+    if provenance and storage != 'mcap':
+        assert version >= 6, 'custom_data exists from metadata version 6'
+        info['custom_data'] = {f'servovalve_twin.{k}': v for k, v in provenance.items()}
     (directory / 'metadata.yaml').write_text(yaml.safe_dump(
         {'rosbag2_bagfile_information': info}, sort_keys=False))
     return msgs
 
 
-def _write_mcap(f: Path, part, types, version, compression):
+def _write_mcap(f: Path, part, types, version, compression, provenance=None):
     from mcap.writer import CompressionType, Writer
     comp = {'none': CompressionType.NONE, 'zstd': CompressionType.ZSTD,
             'lz4': CompressionType.LZ4}[compression]
@@ -112,6 +120,8 @@ def _write_mcap(f: Path, part, types, version, compression):
                           else yaml.safe_dump(qos, sort_keys=False), 'topic_type_hash': ''})
         for topic, _, t, data in part:
             w.add_message(channels[topic], log_time=t, data=data, publish_time=t)
+        if provenance:
+            w.add_metadata('servovalve_twin', dict(provenance))
         w.finish()
 
 

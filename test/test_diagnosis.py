@@ -254,7 +254,9 @@ def test_diagnose_cli_writes_the_schema(flights, tmp_path, capsys):
     assert main(['diagnose', str(bags[1]), '--json', str(out), '--plot',
                  str(tmp_path / 'd.png')]) == 0
     j = json.loads(out.read_text())
-    assert set(j) == {'fault', 'severity', 'interval', 'candidates', 'model', 'window'}
+    assert set(j) == {'fault', 'severity', 'interval', 'candidates', 'model', 'window',
+                      'warnings'}
+    assert j['warnings'] == []              # the twin's bag: its provenance says it all
     assert j['fault'] == 'leakage_growth' and j['severity'] == pytest.approx(4.0, rel=5e-3)
     assert j['model'] == 'SQ' and j['window'] == [0.0, 1.0]
     assert all(set(c) == {'fault', 'severity', 'interval', 'score'} for c in j['candidates'])

@@ -106,27 +106,26 @@ def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:
     """What differs between two recorded runs besides the valve model -- parameters, scenario,
     control period -- from their provenance records (bags only; nothing for CSVs): a comparison
     of two runs of different actuators or inputs is rarely what was meant."""
-    from ..bag.reader import BagRun, mcap_path, read_provenance
+    from ..bag.anybag import open_any_bag
     if Path(ref).suffix in ('.csv', '.parquet') or Path(run).suffix in ('.csv', '.parquet'):
         return []
-    # the provenance records only (the signals were read already): BagRun parses them
-    a, b = (BagRun(path=Path(x), signals={}, topics={}, series={},
-                   provenance=read_provenance(mcap_path(x))) for x in (ref, run))
-    if not a.provenance or not b.provenance:
+    # the provenance records only (the signals were read already)
+    a, b = (open_any_bag(x).provenance for x in (ref, run))
+    if not a or not b:
         return []
     out = []
     from ..physics.params import DEFAULTS
     # a parameter a bag does not list (recorded before it existed) had its default value
     defaults = DEFAULTS.resolved()
-    pa, pb = {**defaults, **a.params()}, {**defaults, **b.params()}
+    pa, pb = {**defaults, **a.params}, {**defaults, **b.params}
     changed = sorted(k for k in set(pa) | set(pb) if pa.get(k) != pb.get(k))
     if changed:
         out.append('the runs were made with different parameters: ' + ', '.join(
             f'{k} {pa.get(k)!r} vs {pb.get(k)!r}' for k in changed[:5])
             + (f' (and {len(changed) - 5} more)' if len(changed) > 5 else ''))
-    if a.scenario() != b.scenario():
-        out.append(f'the runs flew different scenarios: {a.provenance.get("scenario_name")!r} '
-                   f'vs {b.provenance.get("scenario_name")!r} (or the same name, changed)')
+    if a.scenario != b.scenario:
+        out.append(f'the runs flew different scenarios: {a.scenario_name!r} '
+                   f'vs {b.scenario_name!r} (or the same name, changed)')
     if a.control_period != b.control_period:
         out.append(f'the runs had different control periods: {a.control_period} vs '
                    f'{b.control_period} s')

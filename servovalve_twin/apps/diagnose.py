@@ -38,9 +38,13 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
                  bootstrap: int = 0, pairs: bool = False) -> Diagnosis:
     """Diagnose a recorded run with the parameters and control period it was recorded with."""
     run = read_bag(bag)
-    return diagnose(run.signals, bag_params(run), control_period=run.control_period or 1e-3,
-                    model=model, faults=faults, window=window, free=free, bootstrap=bootstrap,
-                    pairs=pairs)
+    d = diagnose(run.signals, bag_params(run), control_period=run.control_period or 1e-3,
+                 model=model, faults=faults, window=window, free=free, bootstrap=bootstrap,
+                 pairs=pairs)
+    if not run.provenance:
+        d.warnings.append(f'{bag}: the bag has no provenance record of the twin: assumed the '
+                          'design parameters (the defaults) and a 1 ms control period')
+    return d
 
 
 def plot_diagnosis(d: Diagnosis, path: str | Path) -> None:

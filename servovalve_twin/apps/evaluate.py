@@ -10,22 +10,17 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..bag.anybag import open_any_bag
-from ..bag.cdr import decode_float64
-from ..bag.reader import read_provenance
+from ..bag.anybag import AnyBag, open_any_bag
+from ..bag.reader import FLOAT64, float64_series
 from ..errors import BagError
 from ..physics.params import EhaParams
 from ..prognostics.algorithm import AlgorithmRun, load_algorithm, run_algorithm
-from .replay import recorded_params
-
-FLOAT64 = 'std_msgs/msg/Float64'
 
 
-def bag_inputs(bag_path: str | Path, names) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def bag_inputs(bag: AnyBag, names) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The ticks (log times, ns) at which every one of ``names`` was recorded, and each
     signal's value at them."""
-    bag = open_any_bag(bag_path)
-    series = {}
+    bag_path = bag.path
     for name in names:
         topic = f'/{name}'
         info = bag.topics.get(topic)
@@ -34,11 +29,9 @@ def bag_inputs(bag_path: str | Path, names) -> tuple[np.ndarray, dict[str, np.nd
                            f'{list(names)}; the bag has {sorted(bag.topics)})')
         if info.type != FLOAT64:
             raise BagError(f'bag {str(bag_path)!r}: {topic} is {info.type}, not {FLOAT64}')
-        t, v = [], []
-        for _, log_ns, data in bag.messages(topics=[topic]):
-            t.append(log_ns)
-            v.append(decode_float64(data))
-        series[name] = (np.array(t, dtype=np.int64), np.array(v))
+    got = float64_series(bag, [f'/{name}' for name in names])
+    series = {name: got.get(f'/{name}', (np.zeros(0, dtype=np.int64), np.zeros(0)))
+              for name in names}
     common = None
     for t, _ in series.values():
         common = t if common is None else np.intersect1d(common, t)
@@ -52,21 +45,19 @@ def bag_inputs(bag_path: str | Path, names) -> tuple[np.ndarray, dict[str, np.nd
     return common, out
 
 
-def bag_nominal(bag_path: str | Path) -> tuple[EhaParams, float]:
+def bag_nominal(bag: AnyBag) -> tuple[EhaParams, float]:
     """The nominal parameters and control period the bag was recorded with (the twin's
-    provenance record), or the defaults and 1 ms for a bag without one (not the twin's, or
-    sqlite3)."""
-    p = Path(bag_path)
-    files = [p] if p.is_file() else sorted(p.glob('*.mcap'))
-    prov = read_provenance(files[0]) if files and files[0].suffix == '.mcap' else {}
-    return recorded_params(prov, p), float(prov.get('control_period', 1e-3))
+    provenance record), or the defaults and 1 ms for a bag without one."""
+    prov = bag.provenance
+    return prov.eha_params(bag.path), prov.control_period or 1e-3
 
 
 def evaluate(bag_path: str | Path, algorithm: Any, params: Mapping[str, Any] | None = None
              ) -> AlgorithmRun:
     alg = load_algorithm(algorithm, params)
-    t_ns, inputs = bag_inputs(bag_path, alg.inputs)
-    nominal, period = bag_nominal(bag_path)
+    bag = open_any_bag(bag_path)
+    t_ns, inputs = bag_inputs(bag, alg.inputs)
+    nominal, period = bag_nominal(bag)
     return run_algorithm(alg, t_ns, inputs, period, nominal)
 
 

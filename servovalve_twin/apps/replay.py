@@ -15,7 +15,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import BagError, TwinError
-from ..physics.params import DEFAULTS, PARAM_NAMES, EhaParams
+from ..physics.params import EhaParams
 from ..physics.scenario import Scenario, scenario_from_dict
 from ..bag.reader import BagRun, read_bag
 from ..config import default_bag_dir
@@ -48,20 +48,7 @@ def scenario_from_bag(run: BagRun) -> Scenario:
 
 def bag_params(run: BagRun) -> EhaParams:
     """The parameters the bag was recorded with (defaults for a bag without provenance)."""
-    return recorded_params(run.provenance, run.path)
-
-
-def recorded_params(provenance: Mapping[str, str], path: str | Path) -> EhaParams:
-    """The parameters of a provenance record (defaults for what it does not list)."""
-    import yaml
-    text = provenance.get('params')
-    values = {k: v for k, v in (yaml.safe_load(text) if text else {}).items()
-              if k in PARAM_NAMES}
-    try:
-        return DEFAULTS.replace(**values)
-    except TwinError as exc:
-        raise BagError(f'bag {str(path)!r}: its recorded parameters are invalid: {exc}'
-                       ) from None
+    return run.provenance.eha_params(run.path)
 
 
 def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path | None = None,

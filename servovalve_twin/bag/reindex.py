@@ -1,10 +1,24 @@
-"""Rebuilding a bag that an interrupted or killed run left without its summary or
-``metadata.yaml``."""
+"""Rebuilding a bag: ``metadata.yaml`` and every MCAP file's summary, from what its storage
+files hold -- after a killed run (no summary, no ``metadata.yaml``) or a damaged file.
+
+What it must never do is lose data. Each MCAP file is scanned record by record, in constant
+memory: a chunk whose CRC fails (or that does not parse) is skipped and reported, and every
+intact chunk after it is kept -- a damaged length field is passed by resynchronising on the
+next chunk whose CRC holds. The messages are rewritten in log-time order (chunks merged by a
+sweep over their time spans, so memory is that of the chunks open at one instant, not the
+bag's), read back and counted, and only then moved into place. A file from which anything was
+dropped is kept beside the rebuilt one as ``<file>.damaged``. Like ``ros2 bag reindex``, a
+sqlite3 bag gets its ``metadata.yaml`` rebuilt from its files (which stay as they are).
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import heapq
+import io
 import os
 import shutil
+import struct
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
@@ -12,120 +26,362 @@ from typing import Any, Iterator
 import yaml
 
 from ..errors import BagError
-from .reader import _mcap_errors, mcap_path
-from .writer import BagWriter
+from .storages import STORAGES, crc_of, storage_of
+from .writer import READ_ONLY_DIRS, BagWriter, _inside, write_metadata_yaml
+
+_CHUNK, _DATA_END, _FOOTER = 0x06, 0x0F, 0x02
+_SCHEMA, _CHANNEL, _MESSAGE, _METADATA = 0x03, 0x04, 0x05, 0x0C
+_HEAD = struct.Struct('<BQ')
+_BLOCK = 1 << 20
 
 
-def _salvage(file: Path, report: dict[str, Any]) -> Iterator[Any]:
-    """Records of a possibly truncated or damaged MCAP file, in file order, up to the first bad
-    byte (a record cut short, or a chunk whose CRC fails); ``report`` gets where it stopped."""
-    from mcap.stream_reader import StreamReader
+@dataclasses.dataclass
+class _Chunk:
+    """An intact chunk found by the scan (or a message outside chunks: ``loose``)."""
+
+    offset: int                 # of the record body
+    length: int
+    start: int
+    end: int
+    loose: bool = False
+
+
+@dataclasses.dataclass
+class Scan:
+    """What one MCAP file holds, by the scan."""
+
+    schemas: dict[int, Any] = dataclasses.field(default_factory=dict)
+    channels: dict[int, Any] = dataclasses.field(default_factory=dict)
+    metadata: list[Any] = dataclasses.field(default_factory=list)
+    chunks: list[_Chunk] = dataclasses.field(default_factory=list)
+    damaged: list[tuple[int, int, str]] = dataclasses.field(default_factory=list)  # at, bytes, why
+
+
+def _stream(body: bytes):
+    from mcap.data_stream import ReadDataStream
+    return ReadDataStream(io.BytesIO(body))
+
+
+def _chunk_records(body: bytes) -> list[Any]:
+    """The records of a chunk record's body, CRC checked (raises on any damage)."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import breakup_chunk
+    chunk = Chunk.read(_stream(body))
+    return breakup_chunk(chunk, validate_crc=True)
+
+
+def _valid_chunk(body: bytes) -> tuple[int, int] | None:
+    """(start, end) log times of an intact chunk; None if it is damaged."""
+    from mcap.records import Chunk, Message
+    try:
+        chunk = Chunk.read(_stream(body))
+        records = _chunk_records(body)
+    except Exception:  # noqa: BLE001 -- whatever a damaged chunk raises, it is damage
+        return None
+    times = [r.log_time for r in records if isinstance(r, Message)]
+    if not times:
+        return chunk.message_start_time, chunk.message_end_time
+    return min(times), max(times)
+
+
+def scan_mcap(file: Path) -> Scan:
+    """Every intact record of an MCAP file up to its DataEnd, damaged stretches reported."""
+    from mcap.records import Channel, Message, Metadata, Schema
+    out = Scan()
     size = file.stat().st_size
-    end = _complete_records_end(file)
-    if end < size:
-        report.update(stopped_at=end, skipped_bytes=size - end,
-                      reason='the file ends inside a record (cut short)')
     with open(file, 'rb') as fh:
-        it = StreamReader(fh, skip_magic=False, validate_crcs=True).records
+        if fh.read(8)[:5] != b'\x89MCAP':
+            raise BagError(f'{str(file)!r} is not an MCAP file')
+        pos = 8
+        while pos + 9 <= size:
+            fh.seek(pos)
+            opcode, length = _HEAD.unpack(fh.read(9))
+            if opcode == _DATA_END and length == 4:
+                stored = struct.unpack('<I', fh.read(4))[0]
+                if not out.damaged and stored and crc_of(fh, 0, pos) != stored:
+                    # every chunk held its CRC: the damage is in a record outside them
+                    out.damaged.append((0, 0, 'the data section CRC does not match: a byte '
+                                        'changed outside the chunks (schemas, channels, '
+                                        'metadata); what parses was kept'))
+                break
+            if opcode == _FOOTER:
+                break
+            body_at = pos + 9
+            ok = body_at + length <= size
+            if ok and opcode == _CHUNK:
+                body = fh.read(length)
+                span = _valid_chunk(body)
+                ok = span is not None
+                if ok:
+                    out.chunks.append(_Chunk(body_at, length, *span))
+                    # a chunk may hold schemas and channels too
+                    for r in _chunk_records(body):
+                        if isinstance(r, Schema):
+                            out.schemas.setdefault(r.id, r)
+                        elif isinstance(r, Channel):
+                            out.channels.setdefault(r.id, r)
+            elif ok and opcode in (_SCHEMA, _CHANNEL, _MESSAGE, _METADATA):
+                body = fh.read(length)
+                kind = {_SCHEMA: Schema, _CHANNEL: Channel, _MESSAGE: Message,
+                        _METADATA: Metadata}[opcode]
+                try:
+                    s = _stream(body)
+                    rec = kind.read(s, length) if kind is Message else kind.read(s)
+                    ok = s.count == length
+                except Exception:  # noqa: BLE001 -- a record that does not parse is damage
+                    ok = False
+                if ok and kind is Schema:
+                    out.schemas.setdefault(rec.id, rec)
+                elif ok and kind is Channel:
+                    out.channels.setdefault(rec.id, rec)
+                elif ok and kind is Metadata:
+                    if rec.name != 'rosbag2':        # rebuilt from the data instead
+                        out.metadata.append(rec)
+                elif ok:
+                    out.chunks.append(_Chunk(body_at, length, rec.log_time, rec.log_time,
+                                             loose=True))
+            # other opcodes (header, indexes, attachments) are skipped by their length
+            if ok:
+                pos = body_at + length
+                continue
+            nxt = _resync(fh, pos + 1, size)
+            why = ('the file ends inside a record (cut short)' if nxt is None
+                   and body_at + length > size else
+                   f'a damaged record (opcode 0x{opcode:02x}) at byte {pos}')
+            out.damaged.append((pos, (nxt or size) - pos, why))
+            if nxt is None:
+                break
+            pos = nxt
+    return out
+
+
+def _resync(fh, start: int, size: int) -> int | None:
+    """The offset of the next chunk record at or after ``start`` whose CRC holds (or of the
+    DataEnd record after which nothing is data); None when there is none."""
+    pos = start
+    while pos < size:
+        fh.seek(pos)
+        block = fh.read(_BLOCK + 9)
+        i = 0
         while True:
-            try:
-                record = next(it)
-            except StopIteration:
-                return
-            except _mcap_errors() as exc:
-                if not report['skipped_bytes']:
-                    report.update(stopped_at=None, skipped_bytes=size,
-                                  reason=f'{type(exc).__name__}: {str(exc)[:120]}')
-                else:
-                    report['reason'] += f'; {type(exc).__name__}: {str(exc)[:120]}'
-                return
-            yield record
+            j = min((k for k in (block.find(b'\x06', i), block.find(b'\x0f', i)) if k >= 0),
+                    default=-1)
+            if j < 0 or j + 9 > len(block):
+                break
+            at = pos + j
+            opcode, length = _HEAD.unpack_from(block, j)
+            if opcode == _DATA_END and length == 4 and at + 13 <= size:
+                return at
+            if opcode == _CHUNK and 40 <= length <= size - at - 9:
+                fh.seek(at + 9)
+                if _valid_chunk(fh.read(length)) is not None:
+                    return at
+            i = j + 1
+        pos += _BLOCK
+    return None
 
 
-def _complete_records_end(file: Path) -> int:
-    """The offset after the last whole record (opcode, u64 length, body) of an MCAP file, or
-    its size when it ends with its footer and magic."""
-    import struct
+def _messages_in_time_order(fh, chunks: list[_Chunk]) -> Iterator[Any]:
+    """Every message of the intact chunks in log-time order (equal times: file order), with
+    only the chunks open whose span holds the sweep's current time."""
+    from mcap.records import Message
+    order = sorted(range(len(chunks)), key=lambda k: (chunks[k].start, k))
+    heap: list[tuple[int, int, int, Any, Iterator]] = []
+
+    def open_chunk(k: int) -> None:
+        c = chunks[k]
+        fh.seek(c.offset)
+        body = fh.read(c.length)
+        if c.loose:
+            msgs = [Message.read(_stream(body), c.length)]
+        else:
+            msgs = [r for r in _chunk_records(body) if isinstance(r, Message)]
+            msgs.sort(key=lambda m: m.log_time)          # stable: file order within a time
+        it = iter(enumerate(msgs))
+        first = next(it, None)
+        if first is not None:
+            heapq.heappush(heap, (first[1].log_time, k, first[0], first[1], it))
+
+    nxt = 0
+    while nxt < len(order) or heap:
+        while nxt < len(order) and (not heap or chunks[order[nxt]].start <= heap[0][0]):
+            open_chunk(order[nxt])
+            nxt += 1
+        if not heap:
+            continue
+        t, k, _, msg, it = heapq.heappop(heap)
+        yield msg
+        following = next(it, None)
+        if following is not None:
+            heapq.heappush(heap, (following[1].log_time, k, following[0], following[1], it))
+
+
+def _rebuild_mcap(file: Path, out_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The file rewritten into ``out_dir`` (same name); returns its bag metadata and report."""
+    scan = scan_mcap(file)
+    if not scan.channels:
+        raise BagError(f'{str(file)!r} holds no readable MCAP channel: nothing to recover')
+    writer = BagWriter(out_dir, file_name=file.name, library='servovalve_twin reindex')
+    for ch in scan.channels.values():
+        schema = scan.schemas.get(ch.schema_id)
+        if schema is not None:
+            qos = ch.metadata.get('offered_qos_profiles')
+            writer.add_topic(ch.topic, schema.name, yaml.safe_load(qos) if qos else None,
+                             definition=schema.data)
+    dropped = 0
     with open(file, 'rb') as fh:
-        data = fh.read()
-    pos = 8
-    while pos + 9 <= len(data):
-        opcode = data[pos]
-        length = struct.unpack_from('<Q', data, pos + 1)[0]
-        if pos + 9 + length > len(data):
-            break
-        pos += 9 + length
-        if opcode == 0x02:                        # the footer: the magic follows
-            return len(data) if data[pos:pos + 8] == data[:8] else pos
-    return pos
+        for m in _messages_in_time_order(fh, scan.chunks):
+            ch = scan.channels.get(m.channel_id)
+            if ch is None or ch.topic not in writer.channels:
+                dropped += 1
+                continue
+            writer.write(ch.topic, m.data, m.log_time, m.publish_time)
+    for md in scan.metadata:
+        writer.add_metadata(md.name, md.metadata)
+    writer.close()
+    meta = writer.bag_metadata()
+    report = dict(file=file.name, messages=meta['message_count'], dropped_messages=dropped,
+                  damaged=[dict(at=a, bytes=n, reason=why) for a, n, why in scan.damaged])
+    return meta, report
+
+
+def _count_back(directory: Path, files: list[str]) -> dict[str, int]:
+    """Messages per topic of the rebuilt files, read back through the one reader."""
+    counts: dict[str, int] = {}
+    for name in files:
+        for topic, _, _ in STORAGES[storage_of(directory / name).name].messages(
+                directory / name, None, None, None):
+            counts[topic] = counts.get(topic, 0) + 1
+    return counts
+
+
+def _custom_data(bag_dir: Path) -> dict[str, str] | None:
+    """The user's ``custom_data`` of an existing metadata.yaml (kept across a rebuild)."""
+    try:
+        raw = yaml.safe_load((bag_dir / 'metadata.yaml').read_text(encoding='utf-8'))
+        custom = raw['rosbag2_bagfile_information'].get('custom_data')
+    except Exception:  # noqa: BLE001 -- absent or unreadable: there is nothing to keep
+        return None
+    return custom if isinstance(custom, dict) else None
+
+
+def _merged_metadata(storage: str, metas: list[dict[str, Any]],
+                     custom: dict[str, str] | None) -> dict[str, Any]:
+    """One bag's metadata (rosbag2 version 9) from each file's."""
+    topics: dict[str, dict[str, Any]] = {}
+    for m in metas:
+        for entry in m['topics_with_message_count']:
+            name = entry['topic_metadata']['name']
+            have = topics.setdefault(name, dict(topic_metadata=entry['topic_metadata'],
+                                                message_count=0))
+            have['message_count'] += entry['message_count']
+    live = [m for m in metas if m['message_count']]
+    start = min((m['starting_time']['nanoseconds_since_epoch'] for m in live), default=0)
+    end = max((m['starting_time']['nanoseconds_since_epoch'] + m['duration']['nanoseconds']
+               for m in live), default=0)
+    files = [f for m in metas for f in m['files']]
+    return dict(version=9, storage_identifier=storage, duration=dict(nanoseconds=end - start),
+                starting_time=dict(nanoseconds_since_epoch=start),
+                message_count=sum(m['message_count'] for m in metas),
+                topics_with_message_count=list(topics.values()), compression_format='',
+                compression_mode='', relative_file_paths=[f['path'] for f in files],
+                files=files, custom_data=custom,
+                ros_distro=metas[0].get('ros_distro', '') if metas else '')
+
+
+def _file_metadata(f: Path) -> dict[str, Any]:
+    """A sqlite3 file's metadata entry, from reading it (its counts are what it holds)."""
+    storage = STORAGES[storage_of(f).name]
+    topics, (t0, t1, n) = storage.summary(f)
+    return dict(message_count=n, starting_time=dict(nanoseconds_since_epoch=t0),
+                duration=dict(nanoseconds=t1 - t0),
+                topics_with_message_count=[dict(topic_metadata=dict(
+                    name=t.name, type=t.type, serialization_format=t.serialization_format,
+                    offered_qos_profiles=t.qos, type_description_hash=''),
+                    message_count=t.count) for t in topics.values()],
+                files=[dict(path=f.name, starting_time=dict(nanoseconds_since_epoch=t0),
+                            duration=dict(nanoseconds=t1 - t0), message_count=n)])
+
+
+def _storage_files(p: Path) -> tuple[Path, list[Path]]:
+    if p.is_file():
+        return p.parent, [p]
+    if not p.is_dir():
+        raise BagError(f'no bag at {str(p)!r}: not a directory or a storage file')
+    for s in STORAGES.values():
+        files = sorted(f for f in p.glob('*' + s.suffix) if not f.is_symlink())
+        if files:
+            return p, files
+    raise BagError(f'no bag at {str(p)!r}: no storage file ('
+                   + ', '.join(s.suffix for s in STORAGES.values()) + ')')
 
 
 def reindex(path: str | Path) -> dict[str, Any]:
-    """Rebuild a readable bag from what an interrupted or killed run left: every complete record
-    of the ``.mcap`` (schemas, channels, messages of complete chunks whose CRC holds, metadata,
-    the twin's provenance among them) is rewritten into a new file with its summary and
-    ``metadata.yaml``. The rebuilt bag is read back before it replaces anything; what could not
-    be recovered is reported. Returns the new bag metadata with ``report``: messages kept,
-    messages of unknown channels dropped, and the bytes skipped from where reading stopped."""
-    from mcap.records import Channel, Message, Metadata, Schema
-    from .reader import read_bag
-    p = Path(path)
-    file = mcap_path(p)
-    bag_dir = p if p.is_dir() else p.parent
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
-    messages: list[Any] = []
-    metadata: list[Any] = []
-    report: dict[str, Any] = dict(stopped_at=None, skipped_bytes=0, reason=None)
-    try:
-        for rec in _salvage(file, report):
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Message):
-                messages.append(rec)
-            elif isinstance(rec, Metadata) and rec.name != 'rosbag2':
-                metadata.append(rec)
-    except OSError as exc:
-        raise BagError(f'cannot read {str(file)!r}: {exc.strerror}') from None
-    if not channels:
-        raise BagError(f'{str(file)!r} holds no readable MCAP channel: nothing to recover')
-    kept = [m for m in messages if m.channel_id in channels]
-    report['dropped_messages'] = len(messages) - len(kept)
-    kept.sort(key=lambda m: m.log_time)
+    """Rebuild the bag at ``path`` (a directory, or one of its storage files). Returns the new
+    bag metadata with ``report``: per file, messages kept, messages of unknown channels
+    dropped, damaged stretches skipped (offset, bytes, reason), and where a damaged original
+    was kept."""
+    bag_dir, files = _storage_files(Path(path))
+    if _inside(bag_dir, READ_ONLY_DIRS):
+        raise BagError(f'{str(bag_dir)!r} is inside the packaged reference bags, which no '
+                       'command writes')
+    storage = storage_of(files[0]).name
+    if any(storage_of(f).name != storage for f in files):
+        raise BagError(f'bag {str(bag_dir)!r} mixes storages; reindex one file at a time')
+    custom = _custom_data(bag_dir)
+    if storage != 'mcap':
+        metas = [_file_metadata(f) for f in files]
+        meta = _merged_metadata(storage, metas, custom)
+        if meta['message_count'] == 0:
+            raise BagError(f'bag {str(bag_dir)!r}: no message to index')
+        write_metadata_yaml(bag_dir, meta)
+        return dict(meta, report=dict(files=[dict(file=f.name, messages=m['message_count'],
+                                                  dropped_messages=0, damaged=[])
+                                             for f, m in zip(files, metas)]))
     tmp_dir = Path(tempfile.mkdtemp(prefix='.reindex-', dir=bag_dir))
     try:
-        writer = BagWriter(tmp_dir, file_name=file.name, flush_every_ns=None,
-                           library='servovalve_twin reindex')
-        for ch in channels.values():
-            schema = schemas.get(ch.schema_id)
-            if schema is not None:
-                qos = ch.metadata.get('offered_qos_profiles')
-                writer.add_topic(ch.topic, schema.name, yaml.safe_load(qos) if qos else None,
-                                 definition=schema.data)
-        for m in kept:
-            topic = channels[m.channel_id].topic
-            if topic in writer.channels:
-                writer.write(topic, m.data, m.log_time, m.publish_time)
-        for md in metadata:
-            writer.add_metadata(md.name, md.metadata)
-        writer.close()
-        meta = writer.bag_metadata()
+        metas, reports = [], []
+        for f in files:
+            sub = tmp_dir / f'{len(metas)}'
+            meta, rep = _rebuild_mcap(f, sub)
+            metas.append(meta)
+            reports.append(rep)
+        meta = _merged_metadata('mcap', metas, custom)
         if meta['message_count'] == 0:
-            raise BagError(f'{str(file)!r}: no complete message to recover')
-        # the rebuilt bag must read back, whole, before it replaces the original
-        back = read_bag(tmp_dir, require_metadata=True) if any(
-            t.get('type') == 'std_msgs/msg/Float64' for t in writer.topics.values()) else None
-        if back is not None and sum(back.topics.values()) != meta['message_count']:
-            raise BagError(f'{str(file)!r}: the rebuilt bag reads back '
-                           f'{sum(back.topics.values())} of {meta["message_count"]} messages')
-        os.replace(tmp_dir / file.name, file)
-        os.replace(tmp_dir / 'metadata.yaml', bag_dir / 'metadata.yaml')
+            raise BagError(f'bag {str(bag_dir)!r}: no complete message to recover')
+        # the rebuilt files must read back, whole, before anything is replaced
+        back: dict[str, int] = {}
+        for k, f in enumerate(files):
+            for t, n in _count_back(tmp_dir / str(k), [f.name]).items():
+                back[t] = back.get(t, 0) + n
+        want = {e['topic_metadata']['name']: e['message_count']
+                for e in meta['topics_with_message_count'] if e['message_count']}
+        if back != want:
+            raise BagError(f'bag {str(bag_dir)!r}: the rebuilt bag reads back '
+                           f'{sum(back.values())} of {meta["message_count"]} messages; the '
+                           'original is left as it was')
+        for k, (f, rep) in enumerate(zip(files, reports)):
+            if rep['damaged'] or rep['dropped_messages']:
+                keep = _free_name(f.with_name(f.name + '.damaged'))
+                try:
+                    os.link(f, keep)              # the original stays, under another name
+                except OSError:
+                    shutil.copy2(f, keep)
+                rep['original_kept_as'] = keep.name
+            os.replace(tmp_dir / str(k) / f.name, f)
+        write_metadata_yaml(bag_dir, meta)
     finally:
         shutil.rmtree(tmp_dir, ignore_errors=True)
-    report['messages'] = meta['message_count']
-    return dict(meta, report=report)
+    return dict(meta, report=dict(files=reports))
 
 
-__all__ = ['reindex']
+def _free_name(p: Path) -> Path:
+    n = 1
+    out = p
+    while out.exists():
+        out = p.with_name(f'{p.name}.{n}')
+        n += 1
+    return out
+
+
+__all__ = ['reindex', 'scan_mcap']

@@ -138,17 +138,19 @@ class Diagnosis:
     n_eff: float
     evaluations: int
     recorded: dict[str, np.ndarray]
+    #: what was assumed or doubted (one line each), in the JSON and on stderr
+    warnings: list[str] = dataclasses.field(default_factory=list)
 
     @property
     def best(self) -> Candidate:
         return self.candidates[0]
 
     def to_json(self) -> dict[str, Any]:
-        """The issue's schema, exactly."""
+        """The JSON of `diagnose --json`: the verdict first, every candidate after it."""
         b = self.best
         return dict(fault=b.fault, severity=b.severity, interval=_interval_json(b.interval),
                     candidates=[c.to_json() for c in self.candidates], model=self.model,
-                    window=list(self.window))
+                    window=list(self.window), warnings=list(self.warnings))
 
 
 class _Problem:

@@ -51,7 +51,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
-from .. import __version__
+from ..bag.provenance import PROVENANCE, Provenance
 from ..bag.recorder import Recorder
 from ..bag.table import signal_table
 from ..bag.writer import BagWriter
@@ -246,8 +246,9 @@ class Twin:
             if self.monitor is not None:
                 self.monitor.model.compile()
             if self.writer is not None:
-                self.writer.add_metadata('servovalve_twin', provenance(
-                    valve_model, self.scenario, self.params, control_period))
+                record = Provenance.build(valve_model, self.scenario, self.params,
+                                          control_period)
+                self.writer.add_metadata(PROVENANCE, record.to_record())
         except BaseException:          # a refusal, a failure or Ctrl-C during start-up
             if self.writer is not None:
                 self.writer.abort()
@@ -449,17 +450,6 @@ def _ros_param_value(name: str, value: Any) -> Parameter:
     if isinstance(value, int):
         return Parameter(name, Parameter.Type.INTEGER, value)
     return Parameter(name, Parameter.Type.DOUBLE, float(value))
-
-
-def provenance(valve_model: str, scenario: Scenario, params: EhaParams,
-               control_period: float) -> dict[str, str]:
-    """What made a run, stored in the bag as MCAP metadata ``servovalve_twin``."""
-    import yaml
-    return {'package': 'servovalve_twin', 'version': __version__, 'valve_model': valve_model,
-            'control_period': repr(control_period), 'scenario_name': scenario.name,
-            'scenario': yaml.safe_dump(scenario.to_dict(), sort_keys=False),
-            'params': yaml.safe_dump({k: v for k, v in params.resolved().items()},
-                                     sort_keys=False)}
 
 
 def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',

@@ -1,0 +1,313 @@
+"""The storages a bag may use, one reader each, registered in :data:`STORAGES` -- in the spirit
+of rosbag2's storage plugins (``get_registered_readers()``): a new storage is one class here and
+one entry in the registry, and every command that takes a bag reads it through
+:func:`~.anybag.open_any_bag`.
+
+A storage reads *one file*: its topics and counts (:meth:`Storage.summary`), its messages in
+log-time order (:meth:`Storage.messages`) and the bag-level metadata records it carries
+(:meth:`Storage.metadata`: MCAP's ``Metadata`` records; sqlite3 has none of its own). Every
+failure is one :class:`~servovalve_twin.errors.BagError` line; a CRC that does not hold is
+corruption, never read past.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import sqlite3
+import struct
+import zlib
+from pathlib import Path
+from typing import Any, Iterator
+
+import yaml
+
+from ..errors import BagError
+
+# what a damaged file raises inside the mcap library besides its own McapError
+_CORRUPT = (EOFError, struct.error, ValueError, KeyError, IndexError, UnicodeDecodeError,
+            MemoryError, OverflowError)
+
+# rmw's enums, as rosbag2 versions <= 8 wrote them (rmw/types.h)
+_HISTORY = {0: 'system_default', 1: 'keep_last', 2: 'keep_all', 3: 'unknown'}
+_RELIABILITY = {0: 'system_default', 1: 'reliable', 2: 'best_effort', 3: 'unknown',
+                4: 'best_available'}
+_DURABILITY = {0: 'system_default', 1: 'transient_local', 2: 'volatile', 3: 'unknown',
+               4: 'best_available'}
+_LIVELINESS = {0: 'system_default', 1: 'automatic', 2: 'manual_by_node', 3: 'manual_by_topic',
+               4: 'unknown', 5: 'best_available'}
+_POLICIES = {'history': _HISTORY, 'reliability': _RELIABILITY, 'durability': _DURABILITY,
+             'liveliness': _LIVELINESS}
+
+
+def normalise_qos(raw: Any) -> list[dict[str, Any]]:
+    """Offered QoS profiles as v9 stores them (a list of maps with policy names), from a v9
+    list, a v4-8 YAML string, integer or name policies; [] when absent or unreadable."""
+    if isinstance(raw, str):
+        try:
+            raw = yaml.safe_load(raw) if raw.strip() else []
+        except yaml.YAMLError:
+            return []
+    if not isinstance(raw, list):
+        return []
+    out = []
+    for prof in raw:
+        if not isinstance(prof, dict):
+            continue
+        prof = dict(prof)
+        for key, names in _POLICIES.items():
+            v = prof.get(key)
+            if isinstance(v, int) and not isinstance(v, bool):
+                prof[key] = names.get(v, 'unknown')
+            elif isinstance(v, str):
+                prof[key] = v.lower()
+        out.append(prof)
+    return out
+
+
+@dataclasses.dataclass
+class TopicInfo:
+    name: str
+    type: str
+    qos: list[dict[str, Any]]
+    count: int = 0
+    serialization_format: str = 'cdr'
+
+
+# (topics, (first log time, last log time, message count)) of one file
+Summary = tuple[dict[str, TopicInfo], tuple[int, int, int]]
+
+
+class Storage:
+    """One storage's reader of one file (the interface every registered storage fills)."""
+
+    name: str = ''
+    suffix: str = ''
+    magic: bytes = b''
+
+    def summary(self, f: Path) -> Summary:
+        """Topics with counts and the time span; by default one pass over the messages."""
+        topics: dict[str, TopicInfo] = {}
+        t0 = t1 = None
+        n = 0
+        for topic, t, _ in self.messages(f, None, None, None, topics):
+            topics[topic].count += 1
+            t0 = t if t0 is None else min(t0, t)
+            t1 = t if t1 is None else max(t1, t)
+            n += 1
+        return topics, (t0 or 0, t1 or 0, n)
+
+    def messages(self, f: Path, keep: set[str] | None, start_ns: int | None,
+                 end_ns: int | None, topics_out: dict[str, TopicInfo] | None = None
+                 ) -> Iterator[tuple[str, int, bytes]]:
+        """(topic, log time, CDR bytes) in log-time order; ``keep`` selects topics, the bounds
+        are inclusive; ``topics_out`` collects each topic's description as it is met."""
+        raise NotImplementedError
+
+    def metadata(self, f: Path) -> dict[str, dict[str, str]]:
+        """The file's named metadata records (name -> string map); none by default."""
+        return {}
+
+
+def mcap_errors() -> tuple[type[BaseException], ...]:
+    """Everything the mcap library raises on a truncated or damaged file."""
+    from mcap.exceptions import McapError
+    return (McapError,) + _CORRUPT
+
+
+def crc_of(fh, start: int, end: int) -> int:
+    """CRC32 of bytes [start, end) of an open file, in blocks: memory does not grow with it."""
+    fh.seek(start)
+    crc, left = 0, end - start
+    while left > 0:
+        block = fh.read(min(left, 1 << 22))
+        if not block:
+            break
+        crc = zlib.crc32(block, crc)
+        left -= len(block)
+    return crc
+
+
+def check_data_crc(file: Path) -> None:
+    """Verify an MCAP file's data-section CRC (the DataEnd record's), which covers what lies
+    outside the chunks -- the metadata records, the twin's provenance among them -- and its
+    summary CRC (the footer's), which covers the statistics and indexes. The mcap reader checks
+    chunk CRCs but neither of these. A CRC of 0 means "not computed" (rosbag2 writes 0; so did
+    this project before CRCs)."""
+    with open(file, 'rb') as fh:
+        fh.seek(0, 2)
+        size = fh.tell()
+        if size < 8 + 29 + 8:
+            return                              # no footer: the reader will say what is wrong
+        fh.seek(0)
+        head = fh.read(8)
+        footer_at = size - 8 - 29
+        fh.seek(footer_at)
+        footer = fh.read(29)
+        tail = fh.read(8)
+        if tail != head or footer[0] != 0x02:
+            return
+        summary_start, _, summary_crc = struct.unpack('<QQI', footer[9:29])
+        end = summary_start - 13 if summary_start else footer_at - 13
+        fh.seek(max(end, 0))
+        data_end = fh.read(13)
+        if end < 8 or data_end[:1] != b'\x0f':
+            raise BagError(f'bag {str(file)!r} is corrupt (no DataEnd record where the footer '
+                           'points)')
+        if summary_start and summary_crc and crc_of(fh, summary_start,
+                                                     footer_at + 25) != summary_crc:
+            raise BagError(f'bag {str(file)!r} is corrupt: the CRC of its summary does not '
+                           'match (a byte was changed in its statistics or indexes)')
+        stored = struct.unpack('<I', data_end[9:13])[0]
+        if stored and crc_of(fh, 0, end) != stored:
+            raise BagError(f'bag {str(file)!r} is corrupt: the CRC of its data section does '
+                           'not match (a byte was changed outside the message chunks)')
+
+
+def _topic_info(channel, schema) -> TopicInfo:
+    """A topic as an MCAP channel (and its schema) describes it; the count is added later."""
+    return TopicInfo(channel.topic, schema.name if schema else '',
+                     normalise_qos(channel.metadata.get('offered_qos_profiles', '')),
+                     serialization_format=channel.message_encoding)
+
+
+class McapStorage(Storage):
+    """MCAP files, chunks uncompressed, zstd or lz4; chunk, summary and data CRCs checked."""
+
+    name, suffix, magic = 'mcap', '.mcap', b'\x89MCAP'
+
+    def summary(self, f: Path) -> Summary:
+        """From the summary's statistics when the file has them, else by reading it once."""
+        from mcap.reader import make_reader
+        try:
+            check_data_crc(f)
+            with open(f, 'rb') as fh:
+                summary = make_reader(fh, validate_crcs=True).get_summary()
+        except OSError as exc:
+            raise BagError(f'cannot read {str(f)!r}: {exc.strerror}') from None
+        except mcap_errors():
+            summary = None                      # no usable summary: read the messages instead
+        if summary is None or summary.statistics is None:
+            return super().summary(f)
+        st = summary.statistics
+        topics: dict[str, TopicInfo] = {}
+        for cid, ch in summary.channels.items():
+            info = topics.setdefault(ch.topic,
+                                     _topic_info(ch, summary.schemas.get(ch.schema_id)))
+            info.count += st.channel_message_counts.get(cid, 0)
+        n = st.message_count
+        return topics, (st.message_start_time if n else 0, st.message_end_time if n else 0, n)
+
+    def messages(self, f, keep, start_ns, end_ns, topics_out=None):
+        from mcap.reader import make_reader
+        try:
+            with open(f, 'rb') as fh:
+                reader = make_reader(fh, validate_crcs=True)
+                # mcap 1.6 names the bounds starting_at / ending_at (inclusive) and deprecates
+                # start_time / end_time (end exclusive), which older releases alone have
+                if 'starting_at' in inspect.signature(reader.iter_messages).parameters:
+                    span = dict(starting_at=start_ns, ending_at=end_ns)
+                else:
+                    span = dict(start_time=start_ns,
+                                end_time=None if end_ns is None else end_ns + 1)
+                for schema, ch, msg in reader.iter_messages(
+                        topics=None if keep is None else sorted(keep), log_time_order=True,
+                        **span):
+                    if topics_out is not None and ch.topic not in topics_out:
+                        topics_out[ch.topic] = _topic_info(ch, schema)
+                    yield ch.topic, msg.log_time, bytes(msg.data)
+        except OSError as exc:
+            raise BagError(f'cannot read {str(f)!r}: {exc.strerror}') from None
+        except mcap_errors() as exc:
+            raise BagError(f'{str(f)!r} is truncated or corrupt ({type(exc).__name__}: '
+                           f'{str(exc)[:120]}); try: servovalve-twin reindex') from None
+
+    def metadata(self, f: Path) -> dict[str, dict[str, str]]:
+        from mcap.reader import make_reader
+        out: dict[str, dict[str, str]] = {}
+        try:
+            check_data_crc(f)
+            with open(f, 'rb') as fh:
+                for meta in make_reader(fh, validate_crcs=True).iter_metadata():
+                    out.setdefault(meta.name, dict(meta.metadata))
+        except OSError as exc:
+            raise BagError(f'cannot read bag {str(f)!r}: {exc.strerror}') from None
+        except mcap_errors() as exc:
+            raise BagError(f'bag {str(f)!r} is truncated or corrupt ({type(exc).__name__}: '
+                           f'{str(exc)[:120]})') from None
+        return out
+
+
+class Sqlite3Storage(Storage):
+    """rosbag2's sqlite3 files (``.db3``), opened read-only; any schema version's topics table."""
+
+    name, suffix, magic = 'sqlite3', '.db3', b'SQLite format 3'
+
+    def messages(self, f, keep, start_ns, end_ns, topics_out=None):
+        try:
+            con = sqlite3.connect(f'file:{f}?mode=ro', uri=True)
+        except sqlite3.Error as exc:
+            raise BagError(f'cannot open {str(f)!r} as sqlite3: {exc}') from None
+        try:
+            cols = {r[1] for r in con.execute('PRAGMA table_info(topics)')}
+            if not {'id', 'name', 'type'} <= cols:
+                raise BagError(f'{str(f)!r} is not a rosbag2 sqlite3 file (no topics table)')
+            qcol = 'offered_qos_profiles' if 'offered_qos_profiles' in cols else "''"
+            fcol = 'serialization_format' if 'serialization_format' in cols else "'cdr'"
+            names = {}
+            for tid, name, typ, fmt, qos in con.execute(
+                    f'SELECT id, name, type, {fcol}, {qcol} FROM topics'):
+                names[tid] = name
+                if topics_out is not None:
+                    topics_out.setdefault(name, TopicInfo(name, typ, normalise_qos(qos),
+                                                          serialization_format=fmt))
+            where, args = [], []
+            if keep is not None:
+                ids = [i for i, n in names.items() if n in keep]
+                where.append(f'topic_id IN ({",".join("?" * len(ids)) or "NULL"})')
+                args += ids
+            if start_ns is not None:
+                where.append('timestamp >= ?')
+                args.append(int(start_ns))
+            if end_ns is not None:
+                where.append('timestamp <= ?')
+                args.append(int(end_ns))
+            sql = ('SELECT topic_id, timestamp, data FROM messages'
+                   + (' WHERE ' + ' AND '.join(where) if where else '')
+                   + ' ORDER BY timestamp, id')
+            for tid, t, data in con.execute(sql, args):
+                yield names[tid], int(t), bytes(data)
+        except sqlite3.DatabaseError as exc:
+            raise BagError(f'{str(f)!r} is not a readable rosbag2 sqlite3 file ({exc})'
+                           ) from None
+        finally:
+            con.close()
+
+
+#: every storage a bag may use, by rosbag2's ``storage_identifier``
+STORAGES: dict[str, Storage] = {s.name: s for s in (McapStorage(), Sqlite3Storage())}
+
+
+def get_registered_readers() -> list[str]:
+    """The storage identifiers this package reads (rosbag2's function of the same name)."""
+    return sorted(STORAGES)
+
+
+def storage_of(f: Path) -> Storage:
+    """The storage of a file, by its suffix or else its first bytes."""
+    for s in STORAGES.values():
+        if f.suffix == s.suffix:
+            return s
+    with open(f, 'rb') as fh:
+        head = fh.read(16)
+    for s in STORAGES.values():
+        if head.startswith(s.magic):
+            return s
+    if head.startswith(b'#ROSBAG'):
+        raise BagError(f'{str(f)!r} is a ROS 1 bag, not a rosbag2 bag')
+    raise BagError(f'{str(f)!r} is not a rosbag2 storage file ('
+                   + ' or '.join(s.suffix for s in STORAGES.values()) + ')')
+
+
+__all__ = ['STORAGES', 'Storage', 'TopicInfo', 'get_registered_readers', 'storage_of',
+           'normalise_qos', 'check_data_crc', 'crc_of', 'mcap_errors']

@@ -1,0 +1,140 @@
+"""The one bag reader's contract: every command that takes a bag reads every storage and
+layout the reader registers. The fixtures are one twin run (the packaged HD reference bag, cut
+to 0.4 s) rewritten by ``bagmaker`` in each layout rosbag2 writes; adding a storage or layout
+adds a fixture here, not a test. The expected values come from the original MCAP file read with
+the ``mcap`` library's own reader, not through this package's storages."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from bagmaker import write_bag
+from servovalve_twin.bag.reader import read_bag
+from servovalve_twin.bag.storages import get_registered_readers
+from servovalve_twin.cli import main
+from servovalve_twin.config import reference_dir
+
+END_NS = 400_000_000
+REF = reference_dir() / 'paper_HD'
+
+#: layout name -> bagmaker arguments; 'provenance' False: a foreign bag without one
+LAYOUTS = {
+    'mcap': dict(storage='mcap'),
+    'mcap-zstd': dict(storage='mcap', compression='zstd'),
+    'mcap-lz4': dict(storage='mcap', compression='lz4'),
+    'mcap-split': dict(storage='mcap', split=3),
+    'mcap-v4': dict(storage='mcap', version=4),
+    'sqlite3': dict(storage='sqlite3'),
+    'sqlite3-split': dict(storage='sqlite3', split=2),
+    'sqlite3-v4': dict(storage='sqlite3', version=4, provenance=False),
+    'foreign-mcap': dict(storage='mcap', provenance=False),
+}
+
+
+def _reference():
+    """(messages as bagmaker takes them, provenance record, /xj values) from the packaged
+    bag, read with the mcap library alone."""
+    msgs, record = [], {}
+    with open(next(REF.glob('*.mcap')), 'rb') as fh:
+        reader = make_reader(fh)
+        for schema, ch, m in reader.iter_messages(log_time_order=True):
+            if m.log_time <= END_NS:
+                msgs.append((ch.topic, schema.name, m.log_time, bytes(m.data)))
+        for meta in reader.iter_metadata():
+            if meta.name == 'servovalve_twin':
+                record = dict(meta.metadata)
+    xj = [struct.unpack('<d', d[4:12])[0] for t, _, _, d in msgs if t == '/xj']
+    return msgs, record, np.array(xj)
+
+
+@pytest.fixture(scope='module')
+def layouts(tmp_path_factory):
+    msgs, record, xj = _reference()
+    root = tmp_path_factory.mktemp('layouts')
+    out = {}
+    for name, kw in LAYOUTS.items():
+        kw = dict(kw)
+        with_prov = kw.pop('provenance', True)
+        write_bag(root / name, msgs=msgs, provenance=record if with_prov else None, **kw)
+        out[name] = (root / name, with_prov)
+    return out, msgs, xj
+
+
+def test_every_registered_storage_has_a_fixture():
+    assert get_registered_readers() == sorted({kw['storage'] for kw in LAYOUTS.values()})
+
+
+@pytest.mark.parametrize('name', LAYOUTS)
+def test_read_bag_reads_every_layout(layouts, name):
+    bags, msgs, xj = layouts
+    path, with_prov = bags[name]
+    run = read_bag(path)
+    np.testing.assert_array_equal(run.signals['xj'], xj)
+    assert sum(run.topics.values()) == len(msgs)
+    assert bool(run.provenance) == with_prov
+    if with_prov:
+        assert run.valve_model == 'HD' and run.control_period == 1e-3
+
+
+@pytest.mark.parametrize('name', LAYOUTS)
+def test_compare_evaluate_diagnose_prognose_reindex(layouts, name, tmp_path, capsys):
+    bags, msgs, xj = layouts
+    path, with_prov = bags[name]
+    # compare against the packaged original: the same rows, so every error is 0
+    assert main(['compare', '@paper_HD', str(path), '--json', str(tmp_path / 'c.json')]) == 0
+    errors = json.loads((tmp_path / 'c.json').read_text())['metrics']['all']
+    assert errors['xj']['n'] == xj.size
+    assert all(e['rms'] == 0 and e['max'] == 0 for e in errors.values()), errors
+    # evaluate: one tick per recorded 1 ms row
+    assert main(['evaluate', str(path), '--algorithm',
+                 'servovalve_twin.prognostics.monitor:MonitorAlgorithm',
+                 '--json', str(tmp_path / 'e.json')]) == 0
+    assert json.loads((tmp_path / 'e.json').read_text())['ticks'] == xj.size
+    # diagnose: a healthy unit; a bag without provenance is diagnosed with a warning
+    capsys.readouterr()
+    assert main(['diagnose', str(path), '--faults', 'leakage_growth',
+                 '--json', str(tmp_path / 'd.json')]) == 0
+    err = capsys.readouterr().err
+    assert ('no provenance record' in err) == (not with_prov), err
+    assert json.loads((tmp_path / 'd.json').read_text())['fault'] == 'healthy'
+    # prognose over three flights of it
+    assert main(['prognose', str(path), str(path), str(path), '--threshold', 'leakage_growth',
+                 '--json', str(tmp_path / 'p.json')]) == 0
+    # reindex a copy: the same messages afterwards, nothing else left behind
+    copy = tmp_path / 'copy'
+    shutil.copytree(path, copy)
+    (copy / 'metadata.yaml').unlink()
+    assert main(['reindex', str(copy)]) == 0
+    again = read_bag(copy)
+    np.testing.assert_array_equal(again.signals['xj'], xj)
+    assert sum(again.topics.values()) == len(msgs)
+    assert bool(again.provenance) == (with_prov and 'sqlite3' not in name)
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('name', LAYOUTS)
+def test_replay_play_and_replay_into(layouts, name, tmp_path, capsys, ros_context):
+    from std_msgs.msg import Float64
+    from servovalve_twin.testing import replay_into
+    bags, msgs, xj = layouts
+    path, with_prov = bags[name]
+    assert main(['replay', str(path), '--out', str(tmp_path / 'r')]) == 0
+    assert read_bag(tmp_path / 'r').valve_model == ('HD' if with_prov else 'C2')
+    capsys.readouterr()
+    assert main(['play', str(path), '--rate', '1000']) == 0
+    assert f'play: done: {len(msgs)} messages' in capsys.readouterr().out
+    node = ros_context and __import__('rclpy.node', fromlist=['Node']).Node(
+        'probe', context=ros_context)
+    seen = []
+    node.create_subscription(Float64, '/xj', lambda m: seen.append(m.data), 10)
+    try:
+        replay_into(node, path)
+    finally:
+        node.destroy_node()
+    np.testing.assert_array_equal(seen, xj)
