@@ -311,9 +311,19 @@ def cmd_prognose(args: argparse.Namespace) -> int:
     if args.plot:
         plot_prognosis(p, args.plot)
     r = p.rul
-    print(f'{fault}: {p.trend.kind} trend over {len(p.history)} flights; threshold '
-          f'{p.threshold:g} in {r["median"]:.1f} cycles (90 %: {r["p05"]:.1f} to '
-          f'{r["p95"]:.1f}) -> {args.json}')
+    if p.status == 'trend':
+        what = (f'{p.trend.kind} trend; threshold {p.threshold:g} in {r["median"]:.1f} cycles '
+                f'(90 %: {r["p05"]:.1f} to {r["p95"]:.1f})')
+    elif p.status == 'step change':
+        what = (f'step change at cycle {p.trend.n0:g} to {p.trend.coef[1]:.4g}; '
+                + ('past the threshold: RUL 0' if r['median'] == 0 else
+                   f'below the threshold {p.threshold:g}, no trend since: no finite RUL'))
+    elif p.status == 'past threshold':
+        what = f'past the threshold {p.threshold:g} already: RUL 0'
+    else:
+        what = (f'no degradation trend (slope {p.slope_z:.1f} standard errors toward the '
+                f'threshold {p.threshold:g}): no finite RUL')
+    print(f'{fault} over {len(p.history)} flights: {what} -> {args.json}')
     return 0
 
 
