@@ -62,6 +62,7 @@ class AlgorithmNode(TwinNode):
         self.level = 0
         self._last_diag_ns: int | None = None
         self.error: str | None = None
+        self._dropped = 0                          # implausible samples the algorithm dropped
         self.first_level: dict[int, float] = {}    # level -> first time [s] it was reached
         self.peaks: dict[str, float] = {}          # output -> largest value
         table = algorithm_topics(algorithm)
@@ -102,6 +103,14 @@ class AlgorithmNode(TwinNode):
 
     def _advance(self, t_ns: int, u: dict[str, float]) -> None:
         outputs, health = self.runner.step(t_ns, u)
+        dropped = getattr(self.alg, 'dropped', 0)
+        if dropped != self._dropped:
+            # an algorithm that drops implausible samples (the monitor) goes on: said at most
+            # once a second
+            self._dropped = dropped
+            self.get_logger().warning(f'{dropped} implausible samples dropped (last: '
+                                      f'{getattr(self.alg, "last_dropped", "")})',
+                                      throttle_duration_sec=1.0)
         prefix = self.alg.topic_prefix
         for name, v in outputs.items():
             self.emit_value(f'{prefix}/{name}', v)

@@ -176,6 +176,12 @@ class MonitorAlgorithm(Algorithm):
         self.filter = None
         self.level = OK
         self._last = None
+        self._outputs = None
+        self._inputs = None
+        #: samples dropped as implausible (a glitch of 1e300 must not end the monitor), and
+        #: the last one, named
+        self.dropped = 0
+        self.last_dropped = ''
 
     @property
     def title(self) -> str:
@@ -193,6 +199,21 @@ class MonitorAlgorithm(Algorithm):
             self.plant = EhaPlant(self.params['monitor_model'], self.nominal)
         self.filter = HealthFilter(self.config, self.period or 1e-3)
         self.level = OK
+        self._outputs = self._inputs = None
+        self.dropped = 0
+        self.last_dropped = ''
+
+    def implausible(self, u) -> str | None:
+        """The first input no actuator can produce -- not finite, a jack beyond twice its end
+        stops, a speed beyond 100 m/s, a pressure beyond ten supplies -- or None."""
+        n = self.nominal
+        bounds = {'com': 10 * n.XJM, 'xj': 2 * n.XJM, 'dxj': 100.0, 'fr': 1e9,
+                  'psr': 10 * n.PSRN, 'p12': 10 * n.PSRN}
+        for name, bound in bounds.items():
+            v = u[name]
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and abs(v) <= bound):
+                return f'{name} = {v!r} at t = {{t:.3f}} s'
+        return None
 
     def set_nominal(self, nominal) -> None:
         """New nominal parameters (the node's parameters changed); the state is kept."""
@@ -209,18 +230,38 @@ class MonitorAlgorithm(Algorithm):
         self.filter = HealthFilter(config, self.period or 1e-3)
 
     def step(self, t, u):
+        bad = self.implausible(u)
+        if bad is not None:
+            # a sensor glitch: the sample is dropped, the model runs on with the last good
+            # inputs and the outputs hold; the monitor goes on
+            self.dropped += 1
+            self.last_dropped = bad.format(t=t)
+            if self._inputs is None:            # nothing good yet: the model stays at rest
+                return {name: 0.0 for name in self.outputs}
+            self._tick(self._inputs, assess=False)
+            return self._outputs
+        self._inputs = u
+        self._outputs = self._tick(u)
+        return self._outputs
+
+    def _tick(self, u, assess: bool = True):
         # the monitor's own loop: its ECU sees its own XJ, as the real ECU sees the plant's
         m = self.plant
         xj_m, dxj_m = m.xj, m.dxj
         cor = m.control(u['com'], xj_m)
         p12_m = float(m.tick(cor, u['fr'], u['psr'], self.n_sub)[0])
         residual = {'xj': u['xj'] - xj_m, 'dxj': u['dxj'] - dxj_m, 'p12': u['p12'] - p12_m}
+        if not assess:                        # a dropped sample's tick: the model only
+            return None
         self.level, ind = self.filter.update(residual)
         self._last = residual, ind
         return {**{f'residual_{s}': residual[s] for s in RESIDUALS},
                 **{f'health_{s}': ind[s] for s in RESIDUALS}}
 
     def health(self) -> Health:
+        if self._last is None:
+            return Health(OK, f'no plausible sample yet; {self.dropped} dropped (last: '
+                              f'{self.last_dropped})', {'dropped_samples': self.dropped})
         residual, ind = self._last
         worst = max(RESIDUALS, key=lambda s: ind[s] / self.config.thresholds(s)[1])
         unit = {'xj': 'm', 'dxj': 'm/s', 'p12': 'Pa'}[worst]
@@ -229,4 +270,7 @@ class MonitorAlgorithm(Algorithm):
                    f'against model {self.plant.model.name}')
         values = {**{f'residual_{s}': residual[s] for s in RESIDUALS},
                   **{f'health_{s}': ind[s] for s in RESIDUALS}}
+        if self.dropped:
+            message += f'; {self.dropped} implausible samples dropped (last: {self.last_dropped})'
+            values['dropped_samples'] = self.dropped
         return Health(self.level, message, values)
