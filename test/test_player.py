@@ -195,3 +195,25 @@ def test_play_executable_services_signals_and_bad_bags(ros_context, tmp_path):
         r = subprocess.run([sys.executable, '-m', 'servovalve_twin.cli', 'play', str(bad)],
                            capture_output=True, text=True, timeout=120, cwd=ROOT)
         assert r.returncode == 2 and fragment in r.stderr and r.stderr.count('\n') == 1, r.stderr
+
+
+def test_a_bag_type_name_never_imports_a_module_that_is_not_a_message_package(tmp_path):
+    """A crafted bag names its type `evilpkg/msg/Foo` (or `this/msg/Foo`, which prints the Zen
+    of Python on import): resolving it must not run that package's import-time code; an
+    installed rosidl package still resolves."""
+    import subprocess
+    import sys
+    pkg = tmp_path / 'evilpkg'
+    (pkg / 'msg').mkdir(parents=True)
+    marker = tmp_path / 'imported'
+    (pkg / '__init__.py').write_text(f'open({str(marker)!r}, "w").close()\n')
+    (pkg / 'msg' / '__init__.py').write_text('Foo = 1\n')
+    code = ('import sys\nfrom servovalve_twin.nodes.player import message_class\n'
+            "assert message_class('evilpkg/msg/Foo') is None\n"
+            "assert message_class('this/msg/Foo') is None and 'this' not in sys.modules\n"
+            "assert message_class('std_msgs/msg/Float64').__name__ == 'Float64'\n")
+    r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                       env={**__import__('os').environ, 'PYTHONPATH': str(tmp_path)},
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert not marker.exists() and 'Beautiful is better' not in r.stdout

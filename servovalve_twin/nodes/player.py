@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 import time
+from pathlib import Path
 from typing import Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor
@@ -92,10 +93,23 @@ def qos_for(recorded: list[dict]) -> QoSProfile:
 
 
 def message_class(type_name: str):
-    """The installed message class of ``pkg/msg/Type``, or None."""
+    """The installed message class of ``pkg/msg/Type``, or None. The name comes from a bag,
+    which anyone may write: only a package that rosidl generated (it carries its
+    ``<pkg>_s__rosidl_typesupport_c`` library) is imported, never an arbitrary module of that
+    name (``this/msg/Foo`` would run ``this``'s import-time code)."""
     import importlib
+    import importlib.util
     parts = type_name.split('/')
-    if len(parts) != 3 or parts[1] not in ('msg', 'srv', 'action'):
+    if len(parts) != 3 or parts[1] not in ('msg', 'srv', 'action') or not all(
+            p.isidentifier() for p in parts):
+        return None
+    try:
+        # find_spec of a top-level name locates it without running it
+        spec = importlib.util.find_spec(parts[0])
+    except (ImportError, ValueError):
+        return None
+    dirs = list(spec.submodule_search_locations or []) if spec is not None else []
+    if not any(any(Path(d).glob(f'{parts[0]}_s__rosidl_typesupport_c*')) for d in dirs):
         return None
     try:                       # what rosidl_runtime_py's get_message does (not on PyPI here)
         return getattr(importlib.import_module(f'{parts[0]}.{parts[1]}'), parts[2])
