@@ -13,8 +13,8 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
     # the HD reference bag of the paper scenario, read-only to every command (servovalve-twin
-    # compare @paper_HD RUN)
-    package_data={'servovalve_twin': ['data/paper_HD/*']},
+    # compare @paper_HD RUN); the diagnosis' model-form calibration (bench/calibrate_diagnosis.py)
+    package_data={'servovalve_twin': ['data/paper_HD/*', 'data/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

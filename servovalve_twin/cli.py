@@ -214,7 +214,9 @@ def _run(args: argparse.Namespace) -> int:
                       monitor=args.monitor,
                       algorithms=[(a, _algorithm_params(args)) for a in args.algorithm]
                       + ([('servovalve_twin.prognostics.estimator:Estimator',
-                           {'model': args.estimator})] if args.estimator else []),
+                           {'model': args.estimator,
+                            'model_form': args.estimator != args.valve_model})]
+                         if args.estimator else []),
                       foxglove=args.foxglove,
                       on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
                       if args.progress else None)
@@ -268,7 +270,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     t = time.perf_counter()
     d = diagnose_bag(args.bag, model=args.model, faults=parse_faults(args.faults),
                      window=parse_window(args.window), free=free, bootstrap=args.bootstrap,
-                     pairs=args.pairs)
+                     pairs=args.pairs, nominal=_overrides(args),
+                     control_period=args.control_period)
     wall = time.perf_counter() - t
     write_json(args.json, d.to_json())
     for w in d.warnings:
@@ -276,9 +279,12 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.plot:
         plot_diagnosis(d, args.plot)
     b = d.best
+    conf = f'{d.confidence:.0%}'.replace('%', ' %')
     what = 'healthy' if b.severity is None else ', '.join(
-        f'{f}, severity {s:.4g} (95 % [{i[0]:.4g}, {i[1]:.4g}])'
+        f'{f}, severity {s:.4g} ({conf} [{i[0]:.4g}, {i[1]:.4g}])'
         for f, s, i in zip(b.faults, b.severities, b.intervals))
+    if d.verdict:
+        what = f'{d.verdict} (best candidate: {b.fault})'
     print(f'{args.bag}: {what} -- {len(d.candidates)} hypotheses, {d.evaluations} model runs '
           f'with {d.model} in {wall:.2f} s -> {args.json}')
     for c in d.candidates:
@@ -686,6 +692,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--pairs', action='store_true',
                    help="also every two faults at once (named 'a+b'; severity and interval "
                         'then list one entry per fault)')
+    _add_param_options(p)
+    p.add_argument('--control-period', type=_positive_float, metavar='S',
+                   help="the ECU's period of the run (default: the bag's, else 1 ms)")
     p.add_argument('--json', required=True, metavar='FILE', help='the diagnosis as JSON')
     p.add_argument('--plot', metavar='FILE.png', help='recorded against fitted signals')
     p.set_defaults(func=cmd_diagnose)

@@ -96,13 +96,20 @@ def test_compare_evaluate_diagnose_prognose_reindex(layouts, name, tmp_path, cap
                  'servovalve_twin.prognostics.monitor:MonitorAlgorithm',
                  '--json', str(tmp_path / 'e.json')]) == 0
     assert json.loads((tmp_path / 'e.json').read_text())['ticks'] == xj.size
-    # diagnose: a healthy unit; a bag without provenance is diagnosed with a warning
+    # diagnose: a healthy unit; a bag without provenance does not say what the design was,
+    # so it is unexplained -- until the user states it
     capsys.readouterr()
     assert main(['diagnose', str(path), '--faults', 'leakage_growth',
                  '--json', str(tmp_path / 'd.json')]) == 0
     err = capsys.readouterr().err
     assert ('no provenance record' in err) == (not with_prov), err
-    assert json.loads((tmp_path / 'd.json').read_text())['fault'] == 'healthy'
+    verdict = json.loads((tmp_path / 'd.json').read_text())['fault']
+    assert verdict == ('healthy' if with_prov else 'unexplained')
+    if not with_prov:
+        assert main(['diagnose', str(path), '--faults', 'leakage_growth', '--param', 'M=500',
+                     '--json', str(tmp_path / 'd.json')]) == 0
+        assert 'assumed the parameters given with --param' in capsys.readouterr().err
+        assert json.loads((tmp_path / 'd.json').read_text())['fault'] == 'healthy'
     # prognose over three flights of it
     assert main(['prognose', str(path), str(path), str(path), '--threshold', 'leakage_growth',
                  '--json', str(tmp_path / 'p.json')]) == 0

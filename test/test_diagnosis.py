@@ -34,7 +34,8 @@ def test_a_fault_injected_in_the_model_itself_is_recovered(fault, severity):
     to 0.5 % -- the least squares, the bounds, the parameterisation of each fault kind
     (multiplier, loss, value) and the information criterion all have to be right."""
     run = simulate('SQ', _faulty(fault, severity), ecu_period=1e-3)
-    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ')
+    # the run is the model's own: no model-form term (model_form=False, as a bag says)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ', model_form=False)
     print(fault, d.best.fault, d.best.severity, d.best.interval)
     assert d.best.fault == fault
     assert d.best.severity == pytest.approx(severity, rel=5e-3)
@@ -62,7 +63,7 @@ def test_a_flat_fit_gets_the_interval_of_its_flat_stretch():
     verdict's likelihood-ratio interval must span the stretch and so hold the truth."""
     run = simulate('HD', _faulty('static_friction', 20.0), ecu_period=1e-3)
     d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ',
-                 faults=['static_friction'])
+                 faults=['static_friction'], model_form=False)
     lo, hi = d.best.interval
     print(d.best.severity, d.best.interval)
     assert d.best.fault == 'static_friction'
@@ -128,7 +129,7 @@ def test_the_bootstrap_interval_is_the_spread_of_repeated_flights():
             sig[k] = sig[k] + rng.normal(0.0, sd, len(sig[k]))
         return sig
 
-    kw = dict(control_period=1e-3, model='SQ', faults=['leakage_growth'])
+    kw = dict(control_period=1e-3, model='SQ', faults=['leakage_growth'], model_form=False)
     fits = [diagnose(flight(s), DEFAULTS, **kw).best for s in range(1, 21)]
     lo, hi = np.percentile([f.severity for f in fits], [2.5, 97.5])
     jlo, jhi = fits[0].interval
@@ -159,6 +160,7 @@ def test_two_faults_at_once_are_recovered_as_a_pair():
                               {'at': 0.0, 'fault': 'leakage_growth', 'severity': 10.0}])
     run = simulate('SQ', scn, ecu_period=1e-3)
     d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ', pairs=True,
+                 model_form=False,
                  faults=['null_bias', 'supply_loss', 'leakage_growth'])
     assert [c.fault for c in d.candidates].count('leakage_growth+null_bias') == 1
     assert len(d.candidates) == 1 + 3 + 3
@@ -260,9 +262,13 @@ def test_diagnose_cli_writes_the_schema(flights, tmp_path, capsys):
     assert main(['diagnose', str(bags[1]), '--json', str(out), '--plot',
                  str(tmp_path / 'd.png')]) == 0
     j = json.loads(out.read_text())
-    assert set(j) == {'fault', 'severity', 'interval', 'candidates', 'model', 'window',
-                      'warnings'}
+    assert set(j) == {'fault', 'severity', 'interval', 'confidence', 'interval_counts',
+                      'fit', 'identifiable', 'bounds', 'also_consistent_with', 'candidates',
+                      'model', 'window', 'warnings'}
     assert j['warnings'] == []              # the twin's bag: its provenance says it all
+    # an SQ twin's bag diagnosed with SQ: the model is exact, no model-form term
+    assert j['confidence'] == 0.95 and j['interval_counts'] == 'measurement noise'
+    assert j['identifiable'] is True and j['bounds'] == []
     assert j['fault'] == 'leakage_growth' and j['severity'] == pytest.approx(4.0, rel=5e-3)
     assert j['model'] == 'SQ' and j['window'] == [0.0, 1.0]
     assert all(set(c) == {'fault', 'severity', 'interval', 'score'} for c in j['candidates'])

@@ -4,13 +4,14 @@ fitting itself is :mod:`..prognostics.diagnosis` and :mod:`..prognostics.prognos
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..bag.reader import read_bag
 from ..errors import TwinError
-from ..prognostics.diagnosis import DIAGNOSABLE, HEALTHY, SIGNALS, Diagnosis, diagnose
+from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
+                                     diagnose, model_form_estimate)
 from ..prognostics.prognosis import Prognosis, prognose
 from .plots import plot_overlay
 from .replay import bag_params
@@ -35,15 +36,32 @@ def parse_faults(text: str | None) -> tuple[str, ...]:
 
 def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
                  window: tuple[float, float] | None = None, free: Sequence[str] = (),
-                 bootstrap: int = 0, pairs: bool = False) -> Diagnosis:
-    """Diagnose a recorded run with the parameters and control period it was recorded with."""
+                 bootstrap: int = 0, pairs: bool = False,
+                 nominal: Mapping[str, Any] | None = None,
+                 control_period: float | None = None) -> Diagnosis:
+    """Diagnose a recorded run against the parameters and control period it was recorded
+    with (its provenance record), ``nominal`` overriding them. The model-form calibration
+    applies unless the bag says it was recorded with the fitted model itself (then exact). A
+    bag without provenance, diagnosed without stated ``nominal`` parameters, is
+    ``unexplained``: its design is not known, so no fault can be measured against it."""
     run = read_bag(bag)
-    d = diagnose(run.signals, bag_params(run), control_period=run.control_period or 1e-3,
-                 model=model, faults=faults, window=window, free=free, bootstrap=bootstrap,
-                 pairs=pairs)
+    design = bag_params(run)
+    if nominal:
+        design = design.replace(**nominal)
+    period = control_period or run.control_period or 1e-3
+    d = diagnose(run.signals, design, control_period=period, model=model, faults=faults,
+                 window=window, free=free, bootstrap=bootstrap, pairs=pairs,
+                 model_form=run.valve_model != model)
     if not run.provenance:
-        d.warnings.append(f'{bag}: the bag has no provenance record of the twin: assumed the '
-                          'design parameters (the defaults) and a 1 ms control period')
+        assumed = ('the parameters given with --param and the defaults for the rest'
+                   if nominal else 'the design parameters (the defaults)')
+        d.warnings.append(f'{bag}: the bag has no provenance record of the twin: assumed '
+                          f'{assumed} and a {period * 1e3:g} ms control period')
+        if not nominal:
+            d.verdict = UNEXPLAINED
+            d.warnings.append('unexplained: a fault is a departure from the actuator\'s design, '
+                              'which a bag without provenance does not state; give it with '
+                              '--param NAME=VALUE (and --control-period)')
     return d
 
 
@@ -72,10 +90,26 @@ def prognose_bags(bags: Sequence[str | Path], fault: str, threshold: float | Non
     history = []
     for i, bag in enumerate(bags):
         d = diagnose_bag(bag, model=model, faults=[fault], window=window)
-        c = next(c for c in d.candidates if c.fault == fault)
-        history.append(dict(cycles=float(cycles[i]) if cycles is not None else float(i),
-                            severity=c.severity, interval=list(c.interval)))
+        history.append(flight_entry(d, fault, float(cycles[i]) if cycles is not None
+                                    else float(i)))
     return prognose(history, fault, threshold)
+
+
+def flight_entry(d: Diagnosis, fault: str, cycles: float) -> dict[str, Any]:
+    """One flight of a prognosis history from its diagnosis: the fault's severity (the
+    verdict's or not) with the model-form correction applied alike to every flight, the
+    fit's noise interval around it, and the model-form spread as ``model_sigma``, which is
+    common to a unit's flights and so carried by the trend, not averaged away."""
+    c = next(c for c in d.candidates if c.fault == fault)
+    severity, interval = c.raw or (c.severity, c.interval)
+    entry = dict(cycles=cycles, severity=severity, interval=list(interval))
+    if d.calibration is not None:
+        severity, _, model_sigma = model_form_estimate(d.calibration, fault, severity,
+                                                       tuple(interval))
+        half = (interval[1] - interval[0]) / 2
+        entry.update(severity=severity, interval=[severity - half, severity + half],
+                     model_sigma=model_sigma)
+    return entry
 
 
 def plot_prognosis(p: Prognosis, path: str | Path) -> None:
@@ -111,5 +145,5 @@ def plot_prognosis(p: Prognosis, path: str | Path) -> None:
     plt.close(fig)
 
 
-__all__ = ['diagnose_bag', 'prognose_bags', 'plot_diagnosis', 'plot_prognosis',
+__all__ = ['diagnose_bag', 'prognose_bags', 'flight_entry', 'plot_diagnosis', 'plot_prognosis',
            'parse_window', 'parse_faults']

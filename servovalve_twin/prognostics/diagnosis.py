@@ -76,6 +76,16 @@ RESIDUAL_SCALE = {'xj': 2.0e-4, 'dxj': 3.0e-3, 'p12': 2.0e5}
 FREE_BOUNDS = (0.5, 2.0)
 BLOCK_ROWS = 50
 HEALTHY = 'healthy'
+UNEXPLAINED = 'unexplained'
+#: catalog faults a simplified model cannot hypothesise (HD geometry it has not), and the
+#: verdicts they are read as (measured on HD units, bench/bench_diagnosis.py: clearance growth
+#: as leakage growth or supply loss): such a verdict says it is also consistent with them
+CONFUSABLE = {'leakage_growth': ('clearance_growth',), 'supply_loss': ('clearance_growth',)}
+#: no hypothesis explains a run whose best fit's RMS exceeds UNEXPLAINED_FACTOR times the
+#: REFERENCE_QUANTILE of the right hypotheses' fits in the calibration set (the quantile, not
+#: the maximum: a few fits of the set itself stop in a wrong valley)
+REFERENCE_QUANTILE = 0.98
+UNEXPLAINED_FACTOR = 1.5
 #: the smallest fault reported, as a fraction of the way from healthy to its alarm severity
 DETECTABLE = 0.1
 #: how much lower (better) a pair's score must be than each of its two single faults' to be
@@ -97,6 +107,8 @@ class Candidate:
     rss: float
     free: dict[str, float]
     fitted: dict[str, np.ndarray]
+    #: the fit's own severity and 95 % interval, before a model-form correction replaced them
+    raw: tuple[Any, Any] | None = None
 
     @property
     def faults(self) -> tuple[str, ...]:
@@ -140,6 +152,33 @@ class Diagnosis:
     recorded: dict[str, np.ndarray]
     #: what was assumed or doubted (one line each), in the JSON and on stderr
     warnings: list[str] = dataclasses.field(default_factory=list)
+    #: 'unexplained' when no hypothesis fits as a right one does (or the nominal parameters
+    #: are unknown); otherwise the best candidate's name
+    verdict: str = ''
+    #: the goodness of fit of the best candidate: its RMS of normalised residuals and the
+    #: share of right fits in the calibration set that fitted as badly (None: no calibration)
+    fit_rms: float = math.nan
+    p_value: float | None = None
+    fit_limit: float | None = None               # the RMS beyond which it is unexplained
+    #: the verdict interval's confidence and what it counts
+    confidence: float = 0.95
+    interval_counts: str = 'measurement noise'
+    #: the model-form calibration applied (None: none, the intervals count the noise only)
+    calibration: dict[str, Any] | None = None
+    #: per fault of the verdict: '' where the data pin its severity, else the one-sided bound
+    #: they support ('static_friction >= 12.3': the likelihood is flat beyond)
+    bounds: list[str] = dataclasses.field(default_factory=list)
+
+    @property
+    def identifiable(self) -> bool:
+        return not any(self.bounds)
+
+    @property
+    def also_consistent_with(self) -> list[str]:
+        """Catalog faults outside the hypotheses that the verdict cannot be told from."""
+        if self.verdict:
+            return []
+        return sorted({o for f in self.best.faults for o in CONFUSABLE.get(f, ())})
 
     @property
     def best(self) -> Candidate:
@@ -148,7 +187,14 @@ class Diagnosis:
     def to_json(self) -> dict[str, Any]:
         """The JSON of `diagnose --json`: the verdict first, every candidate after it."""
         b = self.best
-        return dict(fault=b.fault, severity=b.severity, interval=_interval_json(b.interval),
+        unexplained = self.verdict == UNEXPLAINED
+        return dict(fault=self.verdict or b.fault,
+                    severity=None if unexplained else b.severity,
+                    interval=None if unexplained else _interval_json(b.interval),
+                    confidence=self.confidence, interval_counts=self.interval_counts,
+                    fit=dict(rms=self.fit_rms, p_value=self.p_value, limit=self.fit_limit),
+                    identifiable=self.identifiable, bounds=[b for b in self.bounds if b],
+                    also_consistent_with=self.also_consistent_with,
                     candidates=[c.to_json() for c in self.candidates], model=self.model,
                     window=list(self.window), warnings=list(self.warnings))
 
@@ -291,7 +337,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
              model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
              window: tuple[float, float] | None = None, free: Sequence[str] = (),
              bootstrap: int = 0, seed: int = 0, pairs: bool = False,
-             start: float | None = None) -> Diagnosis:
+             start: float | None = None, model_form: bool = True) -> Diagnosis:
     """Fit every hypothesis and rank them (see the module docstring).
 
     :param signals: the run's 1 ms rows (``read_bag(...).signals``, ``simulate(...).signals``)
@@ -301,6 +347,11 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     :param start: run the model from this instant [s] (at most the window's start), from the
         recorded XJ and DXJ there, instead of from t = 0: the cost of a fit is then that of
         ``window end - start`` whatever the run's length (the live estimator's warm-up)
+    :param model_form: the recorded actuator is not the fitted model (a real one, or HD):
+        correct the verdict's severity for the model's calibrated bias, widen its interval by
+        the calibrated model-form spread (a 90 % interval) and test the goodness of fit
+        (:mod:`.calibration`); False when the run is the fitted model's own (the model is
+        exact) or to calibrate
     """
     for f in faults:
         if f not in FAULTS:
@@ -378,12 +429,96 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         ivs = [_ratio_interval(problem, hyp, i, x, free, res, n, n_own, jac)
                for i in range(len(hyp))]
         best.interval = ivs[0] if len(ivs) == 1 else ivs
+        bounds = [_one_sided(f, iv) for f, iv in zip(hyp, ivs)]
+    else:
+        bounds = []
     if bootstrap and best.fault != HEALTHY:
         boot = _bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
-    return Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
-                     evaluations=problem.evaluations, recorded=dict(problem.recorded,
-                                                                    t=problem.t))
+    d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
+                  evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
+                  fit_rms=math.sqrt(best.rss / n), bounds=bounds)
+    if any(bounds):
+        d.warnings.append('not identifiable on this run: ' + '; '.join(b for b in bounds if b)
+                          + ' (the fit does not change beyond it: a flight that excites it '
+                          'more, e.g. servovalve-twin bit, can pin it)')
+    if model_form:
+        _apply_model_form(d, free)
+    return d
+
+
+def _apply_model_form(d: Diagnosis, free: Sequence[str]) -> None:
+    """The calibration's bias correction and model-form spread on the verdict, and the
+    goodness-of-fit test (see :mod:`.calibration`)."""
+    from .calibration import calibration_for, gof_p_value
+    cal = calibration_for(d.model, free)
+    if cal is None:
+        d.warnings.append(f'no model-form calibration for {d.model} with free '
+                          f'{",".join(sorted(free)) or "none"}: the interval counts the '
+                          'measurement noise only')
+        return
+    d.calibration = cal
+    d.p_value = gof_p_value(cal, d.fit_rms)
+    d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(cal['rms'], REFERENCE_QUANTILE))
+    if d.fit_rms > d.fit_limit:
+        d.verdict = UNEXPLAINED
+        d.warnings.append(f'no hypothesis explains the run: the best ({d.best.fault}) fits with '
+                          f'RMS {d.fit_rms:.3g} of the residual scales, beyond {d.fit_limit:.3g} '
+                          f'({UNEXPLAINED_FACTOR:g} x the {REFERENCE_QUANTILE:.0%} quantile of '
+                          f'right hypotheses in the calibration set; p = {d.p_value:.2g})')
+        return
+    best = d.best
+    if best.fault == HEALTHY:
+        return
+    best.raw = (best.severity, best.interval)
+    sevs, ivs = [], []
+    for f, s, iv in zip(best.faults, best.severities, best.intervals):
+        s, iv, _ = model_form_estimate(cal, f, s, iv)
+        sevs.append(s)
+        ivs.append(iv)
+    best.severity = sevs[0] if len(sevs) == 1 else sevs
+    best.interval = ivs[0] if len(ivs) == 1 else ivs
+    d.confidence = 0.9
+    d.interval_counts = 'measurement noise and the model-form error calibrated against HD'
+
+
+def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
+                        interval95: tuple[float, float]
+                        ) -> tuple[float, tuple[float, float], float]:
+    """A fault's severity less the calibrated bias, its 90 % interval with the model-form
+    spread (the fit's 95 % interval read as a standard error), and that spread as a relative
+    standard deviation of the distance from healthy (what :func:`..prognosis.prognose` takes
+    as ``model_sigma``). Unchanged, with a spread of 0, for a fault the calibration lacks."""
+    from .calibration import Z90, from_g, to_g
+    c = cal['faults'].get(fault)
+    spec = FAULTS[fault]
+    lo, hi = interval95
+    if c is None:
+        return severity, (lo, hi), 0.0
+    se = (to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96)
+    g = to_g(fault, severity) - c['bias']
+    half = Z90 * math.hypot(se, c['sigma'])
+    est = min(max(from_g(fault, g), spec.lo), spec.hi)
+    iv = (max(from_g(fault, g - half), spec.lo), min(from_g(fault, g + half), spec.hi))
+    # the spread in g as a relative error of s - h: dg * s/(s - h) for a multiplier (g = ln
+    # s/h), dg * span/|s - h| for a fraction or value; capped where s is near healthy
+    dist = max(abs(est - spec.healthy), 0.05 * abs(spec.demo - spec.healthy))
+    rel = c['sigma'] * (est if spec.kind == 'scale' else abs(spec.demo - spec.healthy)) / dist
+    return est, iv, float(min(rel, 0.5))
+
+
+def _one_sided(fault: str, interval: tuple[float, float]) -> str:
+    """'' where the likelihood-ratio interval ends inside the catalog's range on the side away
+    from healthy; else the one-sided bound it supports (the near end)."""
+    spec = FAULTS[fault]
+    lo, hi = interval
+    up = spec.demo > spec.healthy
+    far = hi if up else lo
+    limit = spec.hi if up else spec.lo
+    if abs(far - limit) > 1e-9 * max(1.0, abs(limit)):
+        return ''
+    near = lo if up else hi
+    return f'{fault} {">=" if up else "<="} {near:.4g}'
 
 
 def _detectable(c: Candidate) -> bool:
@@ -485,4 +620,5 @@ def _bootstrap_intervals(problem: _Problem, best: Candidate, free: list[str], n:
     return [(float(a), float(b)) for a, b in zip(lo, hi)]
 
 
-__all__ = ['diagnose', 'Diagnosis', 'Candidate', 'DIAGNOSABLE', 'HEALTHY']
+__all__ = ['diagnose', 'Diagnosis', 'Candidate', 'DIAGNOSABLE', 'HEALTHY', 'UNEXPLAINED',
+           'model_form_estimate']

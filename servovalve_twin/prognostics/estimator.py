@@ -23,7 +23,7 @@ import numpy as np
 
 from ..physics.valves import get_monitor_model
 from .algorithm import OK, WARN, Algorithm, AlgorithmError, Health
-from .diagnosis import DIAGNOSABLE, HEALTHY, diagnose
+from .diagnosis import DIAGNOSABLE, HEALTHY, UNEXPLAINED, diagnose
 
 _SIGNALS = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
 
@@ -33,7 +33,10 @@ class Estimator(Algorithm):
 
     inputs = _SIGNALS
     outputs = tuple(f'{f}_severity' for f in DIAGNOSABLE)
-    parameters = {'model': 'SQ', 'window': 0.5, 'every': 0.25, 'warmup': 0.2, 'faults': 'all'}
+    #: model_form: the plant is not the fitted model (a real actuator, HD): the diagnosis'
+    #: model-form calibration applies (``run --estimator`` sets it False when they are one)
+    parameters = {'model': 'SQ', 'window': 0.5, 'every': 0.25, 'warmup': 0.2, 'faults': 'all',
+                  'model_form': True}
     topic_prefix = 'estimator'
     node_name = 'estimator'
 
@@ -79,7 +82,8 @@ class Estimator(Algorithm):
         signals['t'] = signals['t'] - t_first
         d = diagnose(signals, self.nominal, control_period=self.period, model=p['model'],
                      faults=self.faults, window=(t0 - t_first, t - t_first),
-                     start=max(0.0, t0 - p['warmup'] - t_first))
+                     start=max(0.0, t0 - p['warmup'] - t_first),
+                     model_form=bool(p['model_form']))
         # drop what the next estimate will not need: memory and cost stay bounded
         keep_from = t + self.every_ticks * self.period - window - p['warmup'] - 1e-9
         drop = int(np.searchsorted(signals['t'] + t_first, keep_from))
@@ -89,7 +93,10 @@ class Estimator(Algorithm):
             if c.fault != HEALTHY:
                 self.severity[c.fault] = c.severity
         b = d.best
-        if b.fault == HEALTHY:
+        if d.verdict == UNEXPLAINED:
+            self.verdict = Health(WARN, f'unexplained (best candidate {b.fault})',
+                                  dict(fault=UNEXPLAINED, t_estimate=t))
+        elif b.fault == HEALTHY:
             self.verdict = Health(OK, 'healthy', dict(fault=HEALTHY, t_estimate=t))
         else:
             self.verdict = Health(WARN, f'{b.fault} {b.severity:.4g}', dict(

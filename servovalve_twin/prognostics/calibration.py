@@ -1,0 +1,192 @@
+"""The model-form calibration of diagnosis: how far a simplified model's severity estimates lie
+from the truth on HD units, per fault class, and how well a right hypothesis fits -- so that
+a diagnosis can state intervals that hold the truth (not only the measurement noise) and say
+``unexplained`` when no hypothesis fits as a right one does.
+
+The calibration set is generated, seeded, by :func:`calibration_units`: for every catalog fault
+a simplified model can see, at mild, moderate and severe severities (:data:`LEVELS`: 0.3, 0.6
+and 1 of the way from healthy to the alarm value, geometrically for multipliers), and healthy
+units, HD actuators with nuisance drawn within 1.5 times the documented spread (:data:`VARY`;
+the domain a calibrated interval claims), measured with noise scaled 0.5-2x the documented
+level (:data:`NOISE`), flying each of :data:`CAL_SCENARIOS`. Each is diagnosed with the model
+and nuisance set calibrated.
+
+Per fault, in the fault's own coordinate ``g`` (``ln(s/h)`` for a multiplier, ``(s - h)/span``
+for a fraction or a value, ``span`` the distance from healthy to the alarm value):
+
+- ``bias``: the median of ``g(estimate) - g(truth)`` over the units where the fault was named;
+- ``sigma``: the model-form spread, set so that ``g(estimate) - bias +- z*sqrt(se^2 + sigma^2)``
+  holds ``g(truth)`` in 90 % of those units at z = 1.645 (``se`` the fit's own standard error);
+
+and over the units whose right hypothesis was fitted, the distribution of the fit's RMS of
+normalised residuals (``rms``): its quantiles are the goodness-of-fit reference. The result is
+a small JSON file packaged with the code (``data/diagnosis_calibration.json``), rebuilt with
+``bench/calibrate_diagnosis.py``; the bench that scores diagnosis uses other seeds, other
+scenarios and nuisance beyond the spread.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..physics.faults import FAULTS, resolve
+from ..physics.params import DEFAULTS, EhaParams
+
+#: nuisance spread of a unit around its design (relative, uniform): the documented spread
+VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}
+#: documented sensor noise (RMS, SI)
+NOISE = {'xj': 10e-6, 'dxj': 1e-3, 'p12': 50e3}
+#: fractions of the way from healthy to the alarm severity
+LEVELS = (0.3, 0.6, 1.0)
+#: the z of a two-sided 90 % normal interval
+Z90 = 1.6449
+#: the scenarios of the calibration set (1 s each): the paper's, steps under load, a sine
+#: against an opposing load
+CAL_SCENARIOS: dict[str, Any] = {
+    'paper': 'paper',
+    'steps': dict(name='cal_steps', duration=1.0,
+                  com=[[0.0, 0.0], [0.05, 0.03], [0.35, -0.02], [0.65, 0.01]],
+                  fr=[[0.0, 0.0], [0.2, 3000.0], [0.5, -4000.0], [0.8, 0.0]],
+                  psr=[[0.0, 2.0e7]]),
+    'sine': dict(name='cal_sine', duration=1.0,
+                 com={'sine': dict(offset=0.0, amplitude=0.015, frequency=2.5, phase=0.0,
+                                   start=0.05)},
+                 fr=[[0.0, 0.0], [0.05, 5000.0]], psr=[[0.0, 2.0e7]]),
+}
+CALIBRATION_FILE = Path(__file__).resolve().parents[1] / 'data' / 'diagnosis_calibration.json'
+
+
+def severity_at(fault: str, q: float) -> float:
+    """The severity ``q`` of the way from healthy to the alarm value (geometric for a
+    multiplier)."""
+    f = FAULTS[fault]
+    if f.kind == 'scale':
+        return float(f.healthy * (f.demo / f.healthy) ** q)
+    return float(f.healthy + q * (f.demo - f.healthy))
+
+
+def to_g(fault: str, s: float) -> float:
+    """A severity in the fault's calibration coordinate (see the module docstring)."""
+    f = FAULTS[fault]
+    if f.kind == 'scale':
+        return math.log(max(s, 1e-12) / f.healthy)
+    return (s - f.healthy) / abs(f.demo - f.healthy)
+
+
+def from_g(fault: str, g: float) -> float:
+    f = FAULTS[fault]
+    if f.kind == 'scale':
+        return f.healthy * math.exp(g)
+    return f.healthy + g * abs(f.demo - f.healthy)
+
+
+def unit_signals(fault: str | None, q: float, scenario: Any, seed: int, *,
+                 spread: float = 1.0, noise_gain: float | None = None,
+                 onset: float = 0.0, design: EhaParams = DEFAULTS
+                 ) -> tuple[dict[str, np.ndarray], float | None, EhaParams]:
+    """One HD unit's measured run: (signals, the true severity read against the design, the
+    unit's parameters). ``spread`` scales :data:`VARY`; ``noise_gain`` scales :data:`NOISE`
+    (default: drawn log-uniform in [0.5, 2]); ``onset``: when the fault starts."""
+    from ..config import load_scenario
+    from ..runs import simulate
+    from .sweep import draw_nuisance, measured
+    rng = np.random.default_rng(seed)
+    unit = design.replace(**draw_nuisance(rng, {k: v * spread for k, v in VARY.items()},
+                                          design))
+    gain = float(np.exp(rng.uniform(math.log(0.5), math.log(2.0)))) if noise_gain is None \
+        else noise_gain
+    scn = (load_scenario(scenario) if isinstance(scenario, str) else
+           _scenario(json.dumps(scenario, sort_keys=True))).to_dict()
+    truth = None
+    if fault is not None:
+        spec = FAULTS[fault]
+        sev = severity_at(fault, q)
+        scn['faults'] = [{'at': float(onset), 'fault': fault, 'severity': sev}]
+        truth = spec.severity_of(design, resolve(fault, sev, unit)[spec.param])
+    sig = simulate('HD', scn, params=unit, ecu_period=1e-3).signals
+    return measured(sig, {k: v * gain for k, v in NOISE.items()}, rng), truth, unit
+
+
+@functools.lru_cache(maxsize=None)
+def _scenario(text: str):
+    from ..physics.scenario import scenario_from_dict
+    return scenario_from_dict(json.loads(text))
+
+
+def calibration_jobs(units: int, seed: int) -> list[tuple]:
+    """(fault or None, level, scenario name, seed) of the calibration set."""
+    from .diagnosis import DIAGNOSABLE
+    jobs = []
+    k = 0
+    for scen in CAL_SCENARIOS:
+        for u in range(units):
+            jobs.append((None, 0.0, scen, seed * 1_000_003 + k))
+            k += 1
+            for fault in DIAGNOSABLE:
+                for q in LEVELS:
+                    jobs.append((fault, q, scen, seed * 1_000_003 + k))
+                    k += 1
+    return jobs
+
+
+def fit_calibration(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The calibration (bias, sigma per fault; rms quantiles) from diagnosed units: each
+    record has fault, truth, named (the verdict), estimate, se (in g), rms (of the right
+    hypothesis' fit)."""
+    out: dict[str, Any] = {'faults': {}}
+    for fault in sorted({r['fault'] for r in records if r['fault']}):
+        rows = [r for r in records if r['fault'] == fault and r['named'] == fault]
+        if len(rows) < 5:
+            continue
+        err = np.array([to_g(fault, r['estimate']) - to_g(fault, r['truth']) for r in rows])
+        se = np.array([r['se'] for r in rows])
+        bias = float(np.median(err))
+
+        def coverage(sigma: float) -> float:
+            return float(np.mean(np.abs(err - bias) <= Z90 * np.sqrt(se ** 2 + sigma ** 2)))
+
+        lo, hi = 0.0, max(1e-6, float(np.max(np.abs(err - bias))) / Z90 * 1.01)
+        if coverage(0.0) >= 0.9:
+            hi = 0.0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if coverage(mid) >= 0.9 else (mid, hi)
+        out['faults'][fault] = dict(bias=bias, sigma=hi, units=len(rows),
+                                    named=len(rows) / sum(1 for r in records
+                                                          if r['fault'] == fault))
+    rms = np.array([r['rms'] for r in records if r.get('rms') is not None])
+    out['rms_quantiles'] = {str(q): float(np.quantile(rms, q))
+                            for q in (0.5, 0.9, 0.99, 0.999, 1.0)}
+    out['rms'] = sorted(float(x) for x in rms)
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def load_calibration(path: str | None = None) -> dict[str, Any]:
+    """The packaged calibration ({} when absent), keyed by ``'<model>/<free>'``."""
+    p = Path(path) if path else CALIBRATION_FILE
+    if not p.is_file():
+        return {}
+    return json.loads(p.read_text(encoding='utf-8'))
+
+
+def calibration_for(model: str, free: Sequence[str]) -> dict[str, Any] | None:
+    return load_calibration().get(f'{model}/{",".join(sorted(free))}')
+
+
+def gof_p_value(cal: Mapping[str, Any], rms: float) -> float:
+    """The share of right-hypothesis fits of the calibration set that fitted as badly or worse
+    (with the plus-one rule: never 0)."""
+    ref = cal['rms']
+    worse = len(ref) - int(np.searchsorted(ref, rms, side='left'))
+    return (worse + 1) / (len(ref) + 1)
+
+
+__all__ = ['calibration_jobs', 'fit_calibration', 'unit_signals', 'load_calibration',
+           'calibration_for', 'gof_p_value', 'severity_at', 'to_g', 'from_g']
