@@ -556,11 +556,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_params)
 
     p = sub.add_parser('report', help='every model against HD on the paper scenario: table '
-                                      'and figures (optionally into the README)')
+                                      'and figures (optionally into a results page)')
     p.add_argument('--out-dir', default='docs/figures', metavar='DIR',
                    help='where the figures go (default docs/figures)')
-    p.add_argument('--readme', metavar='README.md',
-                   help='replace the results section of this README')
+    p.add_argument('--readme', metavar='PAGE.md',
+                   help='replace the results section (between <!-- results:begin --> and '
+                        '<!-- results:end -->) of this page, e.g. doc/results/against-hd.md')
     _add_param_options(p)
     p.set_defaults(func=cmd_report)
 

@@ -1,6 +1,7 @@
 """Metrics and figures of one run against a reference (normally HD).
 
-Runs are aligned on simulated time in whole milliseconds (the 1 ms output rows of MODELS.md
+Runs are aligned on simulated time in whole milliseconds (the 1 ms output rows of
+doc/design/MODELS.md
 section 9); errors are ``run - reference``. "RMS error" is the root mean square over the rows
 inside a window [t0, t1) -- the last window of a run is closed at the end time.
 """

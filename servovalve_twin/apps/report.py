@@ -1,7 +1,7 @@
 """The results report: every registered model against HD on the paper scenario.
 
-``servovalve-twin report --readme README.md`` regenerates the table between the README's
-``<!-- results:begin -->`` / ``<!-- results:end -->`` markers and the figures in ``docs/figures``.
+``servovalve-twin report --readme doc/results/against-hd.md`` regenerates the table between the
+page's ``<!-- results:begin -->`` / ``<!-- results:end -->`` markers and the figures in ``docs/figures``.
 """
 
 from __future__ import annotations
@@ -76,7 +76,8 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
     table = '\n'.join(lines)
     text = (f'{table}\n\nErrors are run - HD over the 1 ms rows of the paper scenario (whole run, '
             f'and the over-stall window 0.35-0.50 s). Back movement = XJ(0.35 s) - min XJ over '
-            f'0.35-0.60 s. Regenerate with `servovalve-twin report --readme README.md`; '
+            f'0.35-0.60 s. Regenerate with '
+            f'`servovalve-twin report --readme doc/results/against-hd.md`; '
             f'figures in `{out_dir.as_posix()}/`.')
     beyond = beyond_report(out_dir)
     if readme is not None:

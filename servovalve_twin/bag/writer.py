@@ -1,5 +1,6 @@
 """A rosbag2 (Jazzy) MCAP bag writer on the ``mcap`` library, in exactly rosbag2's layout
-(``BAGS.md``): ``<dir>/<dir>_0.mcap`` with profile ``ros2``, one ``ros2msg`` schema per type
+(``doc/design/BAGS.md``): ``<dir>/<dir>_0.mcap`` with profile ``ros2``, one ``ros2msg`` schema
+per type
 carrying the full ``.msg`` text and its dependencies, ``cdr`` channels with
 ``offered_qos_profiles`` and ``topic_type_hash`` metadata, the embedded ``rosbag2`` metadata
 record, and ``metadata.yaml`` version 9 -- so ``ros2 bag``, Foxglove, PlotJuggler and ``rosbags``

@@ -28,11 +28,11 @@ from ..errors import ParameterError, TwinError
 from ..physics.params import DEFAULTS, PARAM_FIELDS, EhaParams, names_read_by, param_table
 
 #: Reliable, keep-last 10: the lockstep sends one message per topic and tick, and depth 1 was
-#: measured to drop bursts (ROS-LOCKSTEP.md).
+#: measured to drop bursts (doc/design/ROS-LOCKSTEP.md).
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 
-#: topic -> (message type, unit, publisher, meaning). The README's topic table is this.
+#: topic -> (message type, unit, publisher, meaning): the docs' topic table is built from it.
 TOPICS: dict[str, tuple[type, str, str, str]] = {
     'com': (Float64, 'm', 'command_generator', 'position command Com'),
     'fr': (Float64, 'N', 'load_supply', 'external load FR (> 0 opposes +XJ)'),

@@ -1,4 +1,5 @@
-"""Hydraulic jack: M*D2XJ = AJ*P12 - FR - CJ*DXJ - FF, end stops at +-XJM (MODELS.md section 4).
+"""Hydraulic jack: M*D2XJ = AJ*P12 - FR - CJ*DXJ - FF, end stops at +-XJM
+(doc/design/MODELS.md section 4).
 
 Coulomb friction FF follows Borello & Dalla Vedova's stick/slip conditions, with the active force
 FA = AJ*P12 - FR - CJ*DXJ:

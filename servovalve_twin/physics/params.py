@@ -2,7 +2,7 @@
 
 Each field carries its unit, bounds and meaning in ``metadata``; the same schema feeds the YAML
 loader (``config/eha.yaml``), the ``--param NAME=VALUE`` parser, the ROS parameter declarations
-and the README. Names are the canonical names of MODELS.md section 5.
+and the docs' reference table. Names are the canonical names of doc/design/MODELS.md section 5.
 
 Derived parameters (``GM``, ``V0``, ``C4_alpha``) default to ``None`` and are computed from the
 others by :meth:`EhaParams.value`; giving a value overrides the derivation (a fault may scale

@@ -15,7 +15,7 @@ Schema (unknown keys are an error; times in s, Com in m, FR in N, PSR in Pa)::
 Files and built-in names are read by :mod:`servovalve_twin.config`. A missing signal takes its
 default (Com 0 m, FR 0 N, PSR = 20 MPa), so ``{}`` is a valid
 scenario. Breakpoints apply to every integration step whose start, in integer nanoseconds, is at
-or after them (MODELS.md section 9): 1.0/1e-5 is not an integer in floating point.
+or after them (doc/design/MODELS.md section 9): 1.0/1e-5 is not an integer in floating point.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Two-stage servovalve mechanics: torque motor + flapper (2nd order) and spool (integrator),
-both with ends of travel (MODELS.md section 4).
+both with ends of travel (doc/design/MODELS.md section 4).
 
     MF*D2XF + CF*DXF + KF*XF = GM*(Cor + CorB) - KFB*(XS + XF),  |XF| <= XFM
     DXS = (GQF/AS)*XF,                                           |XS| <= XSM

@@ -2,7 +2,8 @@
 (the stateful plant the ROS node advances one control period at a time). Both go through
 :func:`~.plant.plant_step` (:func:`~.plant.run_steps` and :func:`~.plant.run_tick`).
 
-Run conventions (MODELS.md section 9): time is an integer count of DT steps; inputs are held
+Run conventions (doc/design/MODELS.md section 9): time is an integer count of DT steps; inputs
+are held
 over a step; output row i holds t_i = i*1 ms, the state at t_i, and the inputs, Cor and P12 in
 force on the step that starts at t_i. Scenarios come in as :class:`~.scenario.Scenario` objects
 or mappings: reading files (built-in names, YAML) is :mod:`servovalve_twin.config`'s, and

@@ -70,7 +70,8 @@ from ..physics.valves import get_monitor_model
 DIAGNOSABLE = tuple(n for n, f in FAULTS.items()
                     if PARAM_FIELDS[f.param].metadata['group'] != 'hd')
 SIGNALS = ('xj', 'dxj', 'p12')
-#: residual scales [SI]: about SQ's RMS error against HD on the paper scenario (README table)
+#: residual scales [SI]: about SQ's RMS error against HD on the paper scenario
+#: (doc/results/against-hd.md)
 RESIDUAL_SCALE = {'xj': 2.0e-4, 'dxj': 3.0e-3, 'p12': 2.0e5}
 #: nuisance factors on the design values
 FREE_BOUNDS = (0.5, 2.0)

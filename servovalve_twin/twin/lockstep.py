@@ -2,7 +2,7 @@
 asked), a clock driver and a bag recorder in one ``EventsExecutor`` on simulated time, in
 deterministic lockstep.
 
-Per control period k (t = k*Tc, an integer count of nanoseconds; ROS-LOCKSTEP.md):
+Per control period k (t = k*Tc, an integer count of nanoseconds; doc/design/ROS-LOCKSTEP.md):
 
 1. ``/clock`` is published with t (every node has ``use_sim_time`` true);
 2. the plant publishes its state at t (XS, XJ, DXJ);

@@ -7,7 +7,7 @@ Every model maps (XS, QJ, PSR) to P12 with one shared compiled signature::
 ``P`` is :class:`~servovalve_twin.physics.params.KernelParams` (SI units), ``vs`` the valve
 state vector of :mod:`..valve_state` (warm starts in, diagnostics out). From Python, a
 :class:`ValveModel` is called as ``model(xs, qj, psr, params, state=None) -> (p12, state,
-info)`` (MODELS.md section 9).
+info)`` (doc/design/MODELS.md section 9).
 
 Everything model-specific lives in the model's file and its entry here: the compiled function,
 its kernel constants, its initial state, its hand-over when switched to mid-run, its

@@ -1,4 +1,4 @@
-"""``HD``: the high-fidelity four-edge servovalve reference (MODELS.md section 3) -- its
+"""``HD``: the high-fidelity four-edge servovalve reference (doc/design/MODELS.md section 3) -- its
 solver, its initial state, its hand-over when switched to mid-run and its diagnostics. The
 calibration of the simplified models from it is :mod:`.calibration`.
 

@@ -1,5 +1,5 @@
 r"""``SQ``: an explicit square-root (orifice-law) servovalve model -- beyond the paper
-(MODELS.md section 8, issue 6).
+(doc/design/MODELS.md section 8, issue 6).
 
 Why. Every C-model of the paper lets the flow fall *linearly* with the load pressure
 (``QJ = (PSR*XS/XSS - (1 + k)*P12)/GPQ``) and clamps P12 at PSR. A real valve meters through

@@ -1,4 +1,4 @@
-"""The paper's explicit simplified fluid-dynamic models (MODELS.md section 2).
+"""The paper's explicit simplified fluid-dynamic models (doc/design/MODELS.md section 2).
 
 Every function has the registry's shared signature ``(xs, qj, psr, P, vs) -> p12``:
 
