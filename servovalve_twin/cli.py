@@ -271,7 +271,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     d = diagnose_bag(args.bag, model=args.model, faults=parse_faults(args.faults),
                      window=parse_window(args.window), free=free, bootstrap=args.bootstrap,
                      pairs=args.pairs, nominal=_overrides(args),
-                     control_period=args.control_period)
+                     control_period=args.control_period, onset=args.onset)
     wall = time.perf_counter() - t
     write_json(args.json, d.to_json())
     for w in d.warnings:
@@ -283,6 +283,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     what = 'healthy' if b.severity is None else ', '.join(
         f'{f}, severity {s:.4g} ({conf} [{i[0]:.4g}, {i[1]:.4g}])'
         for f, s, i in zip(b.faults, b.severities, b.intervals))
+    if d.onset and not d.verdict:
+        what += (f', from t = {d.onset["t"]:.3f} s ([{d.onset["interval"][0]:.3f}, '
+                 f'{d.onset["interval"][1]:.3f}])')
     if d.verdict:
         what = f'{d.verdict} (best candidate: {b.fault})'
     print(f'{args.bag}: {what} -- {len(d.candidates)} hypotheses, {d.evaluations} model runs '
@@ -693,6 +696,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--pairs', action='store_true',
                    help="also every two faults at once (named 'a+b'; severity and interval "
                         'then list one entry per fault)')
+    p.add_argument('--onset', action='store_true',
+                   help='also fit when the fault began (a change point over the window; '
+                        'about 5 x the cost)')
     _add_param_options(p)
     p.add_argument('--control-period', type=_positive_float, metavar='S',
                    help="the ECU's period of the run (default: the bag's, else 1 ms)")

@@ -93,3 +93,4 @@ def test_the_model_form_term_makes_the_interval_hold_the_truth():
             held[mf] += lo <= truth <= hi
     print(held)
     assert held[True] >= 3 and held[False] <= 1
+

@@ -38,7 +38,7 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
                  window: tuple[float, float] | None = None, free: Sequence[str] = (),
                  bootstrap: int = 0, pairs: bool = False,
                  nominal: Mapping[str, Any] | None = None,
-                 control_period: float | None = None) -> Diagnosis:
+                 control_period: float | None = None, onset: bool = False) -> Diagnosis:
     """Diagnose a recorded run against the parameters and control period it was recorded
     with (its provenance record), ``nominal`` overriding them. The model-form calibration
     applies unless the bag says it was recorded with the fitted model itself (then exact). A
@@ -51,7 +51,7 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     period = control_period or run.control_period or 1e-3
     d = diagnose(run.signals, design, control_period=period, model=model, faults=faults,
                  window=window, free=free, bootstrap=bootstrap, pairs=pairs,
-                 model_form=run.valve_model != model)
+                 model_form=run.valve_model != model, onset=onset)
     if not run.provenance:
         assumed = ('the parameters given with --param and the defaults for the rest'
                    if nominal else 'the design parameters (the defaults)')

@@ -166,6 +166,9 @@ class Diagnosis:
     interval_counts: str = 'measurement noise'
     #: the model-form calibration applied (None: none, the intervals count the noise only)
     calibration: dict[str, Any] | None = None
+    #: when the verdict's fault began ({'t', 'interval'} [s]), None: from the start (or not
+    #: asked)
+    onset: dict[str, Any] | None = None
     #: per fault of the verdict: '' where the data pin its severity, else the one-sided bound
     #: they support ('static_friction >= 12.3': the likelihood is flat beyond)
     bounds: list[str] = dataclasses.field(default_factory=list)
@@ -196,6 +199,7 @@ class Diagnosis:
                     fit=dict(rms=self.fit_rms, p_value=self.p_value, limit=self.fit_limit),
                     identifiable=self.identifiable, bounds=[b for b in self.bounds if b],
                     also_consistent_with=self.also_consistent_with,
+                    onset=None if unexplained else self.onset,
                     candidates=[c.to_json() for c in self.candidates], model=self.model,
                     window=list(self.window), warnings=list(self.warnings))
 
@@ -248,26 +252,32 @@ class _Problem:
         self.recorded = {s: np.asarray(signals[s], dtype=float)[self.rows] for s in SIGNALS}
         self.t = t[self.rows]
         self.evaluations = 0
-        self._runs: dict[EhaParams, dict[str, np.ndarray] | None] = {}
+        self._runs: dict[tuple, dict[str, np.ndarray] | None] = {}
+        self.t_start = n_start / 1000                  # run time of the model's t = 0
 
     def params(self, faults: Sequence[str], severities: Sequence[float],
                free: Mapping[str, float]) -> EhaParams:
         nominal = self.design.replace(**{k: self.design.value(k) * v for k, v in free.items()})
         return combine(nominal, dict(zip(faults, severities)))
 
-    def run(self, params: EhaParams) -> dict[str, np.ndarray] | None:
+    def run(self, params: EhaParams, events: tuple = ()) -> dict[str, np.ndarray] | None:
         """The model's window rows for ``params`` (None if the model failed); each parameter
         set runs once -- the fitted signals of a hypothesis are those of its last solver
-        evaluations, not a run more."""
-        if params not in self._runs:
+        evaluations, not a run more. ``events``: faults scheduled during the run, ``(at [s,
+        run time], fault, severity)`` each (an onset)."""
+        key = (params, events)
+        if key not in self._runs:
             self.evaluations += 1
+            scn = self.scenario if not events else dataclasses.replace(
+                self.scenario, faults=tuple(dict(at=at - self.t_start, fault=f, severity=sev)
+                                            for at, f, sev in events))
             try:
-                r = simulate(self.model, self.scenario, params=params,
-                             ecu_period=self.control_period, initial=self.initial)
-                self._runs[params] = {s: r[s][self.model_rows] for s in SIGNALS}
+                r = simulate(self.model, scn, params=params, ecu_period=self.control_period,
+                             initial=self.initial)
+                self._runs[key] = {s: r[s][self.model_rows] for s in SIGNALS}
             except ModelError:
-                self._runs[params] = None
-        return self._runs[params]
+                self._runs[key] = None
+        return self._runs[key]
 
     def residuals(self, fitted: dict[str, np.ndarray] | None,
                   recorded: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
@@ -338,7 +348,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
              model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
              window: tuple[float, float] | None = None, free: Sequence[str] = (),
              bootstrap: int = 0, seed: int = 0, pairs: bool = False,
-             start: float | None = None, model_form: bool = True) -> Diagnosis:
+             start: float | None = None, model_form: bool = True,
+             onset: bool = False) -> Diagnosis:
     """Fit every hypothesis and rank them (see the module docstring).
 
     :param signals: the run's 1 ms rows (``read_bag(...).signals``, ``simulate(...).signals``)
@@ -353,6 +364,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         the calibrated model-form spread (a 90 % interval) and test the goodness of fit
         (:mod:`.calibration`); False when the run is the fitted model's own (the model is
         exact) or to calibrate
+    :param onset: also fit when a single-fault verdict began (see :func:`_fit_onset`)
     """
     for f in faults:
         if f not in FAULTS:
@@ -433,12 +445,15 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         bounds = [_one_sided(f, iv) for f, iv in zip(hyp, ivs)]
     else:
         bounds = []
+    onset_fit = _fit_onset(problem, candidates, n, n_eff) if onset else None
+    if onset_fit is not None:
+        best, bounds = candidates[0], ['']
     if bootstrap and best.fault != HEALTHY:
         boot = _bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
                   evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
-                  fit_rms=math.sqrt(best.rss / n), bounds=bounds)
+                  fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit)
     if any(bounds):
         d.warnings.append('not identifiable on this run: ' + '; '.join(b for b in bounds if b)
                           + ' (the fit does not change beyond it: a flight that excites it '
@@ -506,6 +521,97 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
     dist = max(abs(est - spec.healthy), 0.05 * abs(spec.demo - spec.healthy))
     rel = c['sigma'] * (est if spec.kind == 'scale' else abs(spec.demo - spec.healthy)) / dist
     return est, iv, float(min(rel, 0.5))
+
+
+#: the onset screen: candidate instants over the window per single-fault hypothesis (the
+#: best is then refined by golden section)
+ONSET_GRID = 9
+
+
+class _OnsetProfile:
+    """One fault's severity refitted with the fault starting at each tried instant tau."""
+
+    def __init__(self, problem: _Problem, cand: Candidate):
+        self.problem, self.cand = problem, cand
+        self.fault = cand.faults[0]
+        self.nominal = problem.params((), [], cand.free)
+        self.fits: dict[float, tuple[float, float, Any]] = {}
+
+    def cost(self, tau: float) -> float:
+        from scipy.optimize import least_squares
+        tau = round(float(tau), 4)
+        if tau not in self.fits:
+            spec = FAULTS[self.fault]
+
+            def fun(x):
+                return self.problem.residuals(self.problem.run(
+                    self.nominal, ((tau, self.fault, float(x[0])),)))
+            x0 = min(max(float(self.cand.severity), spec.lo), spec.hi)
+            sol = least_squares(fun, [x0], bounds=([spec.lo], [spec.hi]),
+                                x_scale=[(spec.hi - spec.lo) / 10.0], diff_step=1e-3,
+                                xtol=1e-6, ftol=1e-8, max_nfev=30)
+            self.fits[tau] = (float(sol.x[0]), float(sol.fun @ sol.fun), sol)
+        return self.fits[tau][1]
+
+    def best(self) -> tuple[float, float, float, Any]:
+        tau = min(self.fits, key=lambda t: self.fits[t][1])
+        sev, rss, sol = self.fits[tau]
+        return tau, sev, rss, sol
+
+
+def _fit_onset(problem: _Problem, candidates: list[Candidate], n: int, n_eff: float
+               ) -> dict[str, Any] | None:
+    """A change point: each single-fault hypothesis starting at an instant tau of the window
+    instead of from the start, its severity refitted at each tau of a coarse grid; the best
+    fault's tau refined by golden section. Reported when it beats the best candidate from the
+    start by PAIR_EVIDENCE in BIC (tau, and the severity too against healthy, are parameters
+    more); the taus whose RSS stays within the 95 % likelihood-ratio limit are its interval.
+    The onset candidate is then moved to the front as the verdict, with its severity and
+    Jacobian interval at tau. About 100 model runs per hypothesis."""
+    singles = [c for c in candidates if len(c.faults) == 1]
+    if not singles:
+        return None
+    t0, t1 = problem.window
+    grid = np.linspace(max(t0, problem.t_start) + 0.005, t1 - 0.05, ONSET_GRID)
+    profiles = [_OnsetProfile(problem, c) for c in singles]
+    for prof in profiles:
+        for t in grid:
+            prof.cost(t)
+    prof = min(profiles, key=lambda pr: pr.best()[2])
+    k = int(np.argmin([prof.cost(t) for t in grid]))
+    a, b = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, len(grid) - 1)])
+    g = (math.sqrt(5) - 1) / 2
+    for _ in range(8):
+        c, d = b - g * (b - a), a + g * (b - a)
+        if prof.cost(c) <= prof.cost(d):
+            b = d
+        else:
+            a = c
+    tau, sev, rss, sol = prof.best()
+    ref = candidates[0]
+    extra = 1 + (1 if ref.fault == HEALTHY else 0)
+    gain = n_eff * math.log(max(ref.rss, 1e-300) / max(rss, 1e-300)) - extra * math.log(n_eff)
+    if gain < PAIR_EVIDENCE:
+        return None
+    limit = rss * (1.0 + CHI2_95 * (n / n_eff) / max(n - 2, 1))
+    # the interval: the tried instants that bracket those within the limit (the limit is
+    # crossed somewhere between an instant inside and its neighbour outside)
+    tried = sorted(prof.fits)
+    inside = [t for t in tried if prof.fits[t][1] <= limit]
+    below = [t for t in tried if t < min(inside) and prof.fits[t][1] > limit]
+    above = [t for t in tried if t > max(inside) and prof.fits[t][1] > limit]
+    lo = max(below) if below else t0
+    hi = min(above) if above else t1
+    spec = FAULTS[prof.fault]
+    n_own = _effective_n(sol.fun, len(SIGNALS))
+    iv = _jacobian_interval(prof.fault, 0, sol.x, sol.fun, sol.jac, n, n_own) or (spec.lo,
+                                                                                  spec.hi)
+    cand = prof.cand
+    cand.severity, cand.interval, cand.rss = sev, iv, rss
+    cand.fitted = problem.run(prof.nominal, ((tau, prof.fault, sev),)) or {}
+    candidates.remove(cand)
+    candidates.insert(0, cand)
+    return dict(t=float(tau), interval=[float(lo), float(hi)], fault=prof.fault)
 
 
 def _one_sided(fault: str, interval: tuple[float, float]) -> str:
