@@ -145,3 +145,80 @@ def test_replay_play_and_replay_into(layouts, name, tmp_path, capsys, ros_contex
     finally:
         node.destroy_node()
     np.testing.assert_array_equal(seen, xj)
+
+
+def _crafted(tmp_path, name, edit_meta=None, record=None):
+    """A copy of the twin's bag (MCAP) with its metadata.yaml or provenance edited."""
+    import yaml as _yaml
+    msgs, good, _ = _reference()
+    d = tmp_path / name
+    write_bag(d, msgs=msgs[:400], provenance=record if record is not None else good)
+    if edit_meta is not None:
+        meta = _yaml.safe_load((d / 'metadata.yaml').read_text())
+        edit_meta(meta['rosbag2_bagfile_information'], d)
+        (d / 'metadata.yaml').write_text(_yaml.safe_dump(meta))
+    return d
+
+
+def _bad_records():
+    _, good, _ = _reference()
+    yield 'cp', dict(good, control_period='fast')
+    yield 'params-list', dict(good, params='- 1\n- 2\n')
+    yield 'params-text', dict(good, params='M: heavy\n')
+    yield 'bad-yaml', dict(good, scenario='{unclosed: [')
+    yield 'fault-no-at', dict(good, scenario=good['scenario'] + 'faults:\n- fault: leakage_growth\n'
+                              '  severity: 2.0\n')
+    yield 'windows-list', dict(good, scenario=good['scenario'].replace('windows:', 'windows: []\n'
+                                                                       'old_windows:'))
+
+
+def _bad_metadata():
+    outside = lambda m, d: m.update(relative_file_paths=['../elsewhere.mcap'])   # noqa: E731
+    twice = lambda m, d: m.update(relative_file_paths=m['relative_file_paths'] * 2)  # noqa
+    absolute = lambda m, d: m.update(relative_file_paths=[str(REF / 'paper_HD_0.mcap')])  # noqa
+    ints = lambda m, d: m.update(relative_file_paths=[1, 2])                   # noqa: E731
+    files_int = lambda m, d: m.update(relative_file_paths=7)                    # noqa: E731
+    topics_junk = lambda m, d: m.update(topics_with_message_count={'a': 1})     # noqa: E731
+    yield from (('outside', outside), ('twice', twice), ('absolute', absolute), ('ints', ints),
+                ('files-int', files_int))
+    yield 'topics-junk', topics_junk           # not needed to read the data: read as if absent
+
+
+@pytest.mark.parametrize('name,record', list(_bad_records()), ids=[n for n, _ in _bad_records()])
+def test_a_malformed_provenance_record_is_one_line_for_every_command(tmp_path, capsys, name,
+                                                                     record):
+    d = _crafted(tmp_path, name, record=record)
+    for args in (['compare', '@paper_HD', str(d)], ['evaluate', str(d), '--algorithm',
+                 'servovalve_twin.prognostics.monitor:MonitorAlgorithm'],
+                 ['diagnose', str(d), '--json', str(tmp_path / 'd.json')], ['replay', str(d)]):
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1, err
+        assert 'provenance record' in err or 'its recorded' in err, err
+        assert 'Traceback' not in err
+
+
+@pytest.mark.parametrize('name,edit', list(_bad_metadata()), ids=[n for n, _ in _bad_metadata()])
+def test_metadata_written_by_someone_else_cannot_point_outside_the_bag(tmp_path, capsys, name,
+                                                                      edit):
+    (tmp_path / 'elsewhere.mcap').write_bytes((next(REF.glob('*.mcap'))).read_bytes())
+    d = _crafted(tmp_path, name, edit_meta=edit)
+    code = main(['evaluate', str(d), '--algorithm',
+                 'servovalve_twin.prognostics.monitor:MonitorAlgorithm',
+                 '--json', str(tmp_path / 'e.json')])
+    err = capsys.readouterr().err
+    if name == 'topics-junk':
+        assert code == 0 and json.loads((tmp_path / 'e.json').read_text())['ticks'] > 0
+        return
+    assert code == 2 and err.count('\n') == 1 and 'metadata.yaml' in err, err
+
+
+def test_a_huge_or_deep_metadata_file_is_refused(tmp_path, capsys):
+    d = _crafted(tmp_path, 'deep')
+    (d / 'metadata.yaml').write_text('[' * 10000 + ']' * 10000)
+    assert main(['compare', '@paper_HD', str(d)]) == 2
+    assert 'not readable YAML' in capsys.readouterr().err
+    with open(d / 'metadata.yaml', 'w') as fh:
+        fh.truncate(17 * 2 ** 20)
+    assert main(['compare', '@paper_HD', str(d)]) == 2
+    assert 'MiB' in capsys.readouterr().err

@@ -130,10 +130,14 @@ def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
             count += n
     custom = {}
     if meta is not None:
-        for entry in meta.get('topics_with_message_count') or []:
-            tm = (entry or {}).get('topic_metadata') or {}
+        entries = meta.get('topics_with_message_count') or []
+        for entry in entries if isinstance(entries, list) else []:
+            tm = entry.get('topic_metadata') if isinstance(entry, dict) else None
+            if not isinstance(tm, dict):
+                continue
             name = tm.get('name')
-            if name in topics and tm.get('offered_qos_profiles') is not None:
+            if isinstance(name, str) and name in topics and tm.get('offered_qos_profiles') \
+                    is not None:
                 qos = normalise_qos(tm['offered_qos_profiles'])
                 if qos:
                     topics[name].qos = qos
@@ -151,9 +155,27 @@ def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
 
 
 def _listed_files(p: Path, meta: dict[str, Any]) -> tuple[str, list[Path]]:
-    storage = str(meta.get('storage_identifier') or '')
+    """The storage files metadata.yaml lists: each one a file inside the bag directory (no
+    absolute path, no ``..``, no link out of it), each once -- a metadata file is written by
+    whoever made the bag, and must not make a command read another bag or any other file."""
+    storage = meta.get('storage_identifier') or ''
     rel = meta.get('relative_file_paths') or []
-    files = [p / Path(f).name if not (p / f).exists() else p / f for f in rel]
+    if not isinstance(storage, str) or not isinstance(rel, list) or not all(
+            isinstance(f, str) and f for f in rel):
+        raise BagError(f'bag {str(p)!r}: metadata.yaml\'s storage_identifier must be a name and '
+                       'relative_file_paths a list of file names')
+    root = p.resolve()
+    files = []
+    for f in rel:
+        # rosbag2 before Humble wrote the bag directory into each path: <bag>/<bag>_0.db3
+        cand = p / f if (p / f).exists() else p / Path(f).name
+        where = cand.resolve()
+        if Path(f).is_absolute() or where.parent != root:
+            raise BagError(f'bag {str(p)!r}: metadata.yaml lists {f!r}, which is not a file of '
+                           'the bag directory')
+        if where in {x.resolve() for x in files}:
+            raise BagError(f'bag {str(p)!r}: metadata.yaml lists {f!r} twice')
+        files.append(cand)
     if not storage and files:
         storage = storage_of(files[0]).name
     if storage not in STORAGES:
@@ -166,13 +188,20 @@ def _listed_files(p: Path, meta: dict[str, Any]) -> tuple[str, list[Path]]:
     return storage, files
 
 
+#: the largest metadata.yaml read (rosbag2's, for any bag of this project's size, is a few kB)
+METADATA_LIMIT = 16 * 2 ** 20
+
+
 def _read_metadata(d: Path) -> dict[str, Any] | None:
     f = d / 'metadata.yaml'
     if not f.is_file():
         return None
+    if f.stat().st_size > METADATA_LIMIT:
+        raise BagError(f'{str(f)!r} is {f.stat().st_size / 2 ** 20:.0f} MiB; a rosbag2 '
+                       f'metadata.yaml is at most {METADATA_LIMIT // 2 ** 20} MiB here')
     try:
         raw = yaml.safe_load(f.read_text(encoding='utf-8'))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
         raise BagError(f'{str(f)!r} is not readable YAML ({type(exc).__name__})') from None
     info = raw.get('rosbag2_bagfile_information') if isinstance(raw, dict) else None
     if not isinstance(info, dict):
