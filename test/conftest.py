@@ -34,16 +34,27 @@ def runs():
 
 
 def console_script(name: str) -> str:
-    """Path of an installed console script of this package: next to the interpreter (pip,
-    the venv), in colcon's ``install/servovalve_twin/lib/servovalve_twin/``, or on PATH."""
+    """Path of an installed executable of this package, found the way ``ros2 run`` finds it:
+    in ``lib/servovalve_twin/`` of the package's prefix in the ament index (a colcon
+    workspace after ``source install/setup.bash``, or a ROS installation); else beside the
+    interpreter (a pip install into the venv), else on PATH."""
     import shutil
-    import servovalve_twin
-    pkg = Path(servovalve_twin.__file__).resolve()
-    for path in (Path(sys.executable).parent / name,
-                 pkg.parents[3] / 'servovalve_twin' / name if len(pkg.parents) > 3 else None):
-        if path is not None and path.exists():
+    candidates = []
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+        try:
+            candidates.append(Path(get_package_prefix('servovalve_twin')) / 'lib'
+                              / 'servovalve_twin' / name)
+        except PackageNotFoundError:
+            pass
+    except ImportError:
+        pass
+    candidates.append(Path(sys.executable).parent / name)
+    for path in candidates:
+        if path.exists():
             return str(path)
     found = shutil.which(name)
     if not found:
-        pytest.fail(f'console script {name!r} is not installed: run scripts/setup')
+        pytest.fail(f'executable {name!r} of servovalve_twin is not installed: run scripts/setup '
+                    '(pip) or colcon build and source install/setup.bash')
     return found

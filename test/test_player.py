@@ -201,6 +201,7 @@ def test_a_bag_type_name_never_imports_a_module_that_is_not_a_message_package(tm
     """A crafted bag names its type `evilpkg/msg/Foo` (or `this/msg/Foo`, which prints the Zen
     of Python on import): resolving it must not run that package's import-time code; an
     installed rosidl package still resolves."""
+    import os
     import subprocess
     import sys
     pkg = tmp_path / 'evilpkg'
@@ -213,7 +214,8 @@ def test_a_bag_type_name_never_imports_a_module_that_is_not_a_message_package(tm
             "assert message_class('this/msg/Foo') is None and 'this' not in sys.modules\n"
             "assert message_class('std_msgs/msg/Float64').__name__ == 'Float64'\n")
     r = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                       env={**__import__('os').environ, 'PYTHONPATH': str(tmp_path)},
+                       env={**os.environ, 'PYTHONPATH': os.pathsep.join(filter(None, (
+                           str(tmp_path), os.environ.get('PYTHONPATH'))))},
                        timeout=120)
     assert r.returncode == 0, r.stderr
     assert not marker.exists() and 'Beautiful is better' not in r.stdout

@@ -229,8 +229,12 @@ def test_algorithm_and_player_executables(tmp_path):
     """`ros2 run servovalve_twin algorithm -p class:=...` hosts a user's class alone (its
     parameters as ROS parameters); `player -p bag:=...` plays a bag to its end; bad input is
     one line and exit 2."""
+    # the user's module added to the path, not in place of it (under colcon the package
+    # itself comes from install/ through PYTHONPATH)
     env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM='0',
-               PYTHONPATH=str(ROOT / 'docs' / 'examples' / 'my_detector'))
+               PYTHONPATH=os.pathsep.join(filter(None, (
+                   str(ROOT / 'docs' / 'examples' / 'my_detector'),
+                   os.environ.get('PYTHONPATH')))))
     proc = subprocess.Popen([console_script('algorithm'), '--ros-args', '-p',
                              'class:=leak_detector:LeakDetector', '-p', 'threshold:=2.5'],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
