@@ -48,7 +48,9 @@ The hypothesis holds over the whole simulated stretch, from t = 0 to the window'
 with one degradation level (prognosis). A fault that appears mid-run is diagnosed on a window
 after its onset, with the model run faulty from the start -- a bias for faults that change the
 state before the window -- unless ``start`` (after the onset) has the model start from the
-recorded jack state there, as the live estimator does.
+recorded jack state there, as the live estimator does; ``onset`` fits the instant it began
+(:func:`_fit_onset`). What the answer's confidence counts -- the model-form calibration, the
+goodness of fit, identifiability -- is doc/explanation/diagnosis.md.
 """
 
 from __future__ import annotations
@@ -448,7 +450,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     onset_fit = _fit_onset(problem, candidates, n, n_eff) if onset else None
     if onset_fit is not None:
         best, bounds = candidates[0], ['']
-    if bootstrap and best.fault != HEALTHY:
+    # (the bootstrap refits faults present from the start: not an onset's)
+    if bootstrap and best.fault != HEALTHY and onset_fit is None:
         boot = _bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
@@ -456,8 +459,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                   fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit)
     if any(bounds):
         d.warnings.append('not identifiable on this run: ' + '; '.join(b for b in bounds if b)
-                          + ' (the fit does not change beyond it: a flight that excites it '
-                          'more, e.g. servovalve-twin bit, can pin it)')
+                          + ' (the fit does not change beyond it: only a flight that excites '
+                          'it more can pin it)')
     if model_form:
         _apply_model_form(d, free)
     return d
