@@ -45,7 +45,7 @@ def console_script(name: str) -> str:
         try:
             candidates.append(Path(get_package_prefix('servovalve_twin')) / 'lib'
                               / 'servovalve_twin' / name)
-        except PackageNotFoundError:
+        except (PackageNotFoundError, OSError):     # OSError: no AMENT_PREFIX_PATH at all
             pass
     except ImportError:
         pass
