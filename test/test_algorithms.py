@@ -252,3 +252,49 @@ def test_the_worked_example_passes_as_a_users_test_suite():
                        text=True, timeout=600, cwd=EXAMPLE, env=dict(os.environ))
     print(r.stdout[-1500:], r.stderr[-500:])
     assert r.returncode == 0 and '3 passed' in r.stdout
+
+
+class _Bad(Algorithm):
+    """An algorithm that misbehaves the way ``how`` says (set as a class parameter)."""
+
+    inputs = ('xj',)
+    outputs = ('y',)
+    parameters = {'how': ''}
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        if self.params['how'] == 'init':
+            raise ZeroDivisionError('boom in init')
+
+    def step(self, t, u):
+        how = self.params['how']
+        if how == 'exit':
+            raise SystemExit(0)
+        return {'y': {'bool': True, 'text': 'high', 'big': 10 ** 400}.get(how, 1.0)}
+
+    def health(self):
+        from servovalve_twin.prognostics import Health
+        how = self.params['how']
+        if how == 'level7':
+            return Health(7, 'x')
+        if how == 'message':
+            return Health(1, 42)
+        if how == 'key':
+            return Health(1, 'x', {3: 1.0})
+        return None
+
+
+@pytest.mark.parametrize('how, fragment', [
+    ('init', 'failed in __init__: ZeroDivisionError'), ('exit', 'raised at t = 0.000 s: SystemExit'),
+    ('bool', 'must return a number'), ('text', 'must return a number'),
+    ('big', 'must return a number'), ('level7', "level 7: expected OK"),
+    ('message', 'message must be a string'), ('key', 'string keys')])
+def test_a_misbehaving_algorithm_is_one_error_naming_it(how, fragment):
+    """Every way a user's class can go wrong is an AlgorithmError naming the algorithm, never
+    a traceback or a silent exit: a SystemExit in step() ended evaluate with rc 0 and no output,
+    a health level 7 was scored as an alarm, a string key broke the diagnostics message."""
+    from servovalve_twin.physics.params import DEFAULTS
+    from servovalve_twin.prognostics.algorithm import run_algorithm
+    with pytest.raises(AlgorithmError, match=fragment):
+        alg = load_algorithm(_Bad, {'how': how})
+        run_algorithm(alg, np.array([0, 1_000_000]), {'xj': np.zeros(2)}, 1e-3, DEFAULTS)

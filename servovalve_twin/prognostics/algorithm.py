@@ -140,7 +140,8 @@ def load_algorithm(spec: Any, params: Mapping[str, Any] | None = None) -> Algori
                                  f'{spec!r}')
         try:
             module = importlib.import_module(mod_name)
-        except Exception as exc:  # noqa: BLE001 -- any import failure is the user's module
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 -- the user's module; a
+            # sys.exit() at import would otherwise end the host with rc 0 and no output
             raise AlgorithmError(f'algorithm {spec}: cannot import {mod_name!r} '
                                  f'({type(exc).__name__}: {exc})') from None
         cls = getattr(module, cls_name, None)
@@ -149,7 +150,13 @@ def load_algorithm(spec: Any, params: Mapping[str, Any] | None = None) -> Algori
     if not (isinstance(cls, type) and issubclass(cls, Algorithm)):
         raise AlgorithmError(f'algorithm {spec!r} is not a servovalve_twin.prognostics.'
                              'Algorithm subclass')
-    alg = cls(**dict(params or {}))
+    try:
+        alg = cls(**dict(params or {}))
+    except TwinError:
+        raise
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 -- the user's constructor
+        raise AlgorithmError(f'algorithm {getattr(cls, "__name__", spec)} failed in __init__: '
+                             f'{type(exc).__name__}: {exc}') from None
     check_declaration(alg)
     return alg
 
@@ -179,7 +186,7 @@ class AlgorithmRunner:
             alg.setup(period, nominal)
         except TwinError:
             raise
-        except Exception as exc:  # noqa: BLE001 -- the user's code
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 -- the user's code
             raise AlgorithmError(f'algorithm {alg.title} failed in setup: '
                                  f'{type(exc).__name__}: {exc}') from None
 
@@ -191,19 +198,41 @@ class AlgorithmRunner:
             health = alg.health()
         except TwinError as exc:
             raise AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: {exc}') from None
-        except Exception as exc:  # noqa: BLE001 -- the user's code
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 -- the user's code
             raise AlgorithmError(f'algorithm {alg.title} raised at t = {t:.3f} s: '
                                  f'{type(exc).__name__}: {exc}') from None
         try:
-            values = {name: float(out[name]) for name in alg.outputs}
-        except (KeyError, TypeError, ValueError) as exc:
+            raw = [out[name] for name in alg.outputs]
+            bad = next((v for v in raw if isinstance(v, bool)
+                        or not isinstance(v, (int, float, np.floating, np.integer))), None)
+            if bad is not None:
+                raise TypeError(f'{bad!r} is not a number')
+            values = {name: float(v) for name, v in zip(alg.outputs, raw)}
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: step() must return '
                                  f'a number for each output {list(alg.outputs)} '
                                  f'({type(exc).__name__}: {exc})') from None
-        if health is not None and not isinstance(health, Health):
-            raise AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: health() must return '
-                                 f'a Health or None, got {type(health).__name__}')
+        if health is not None:
+            _check_health(alg, t, health)
         return values, health
+
+
+def _check_health(alg: Algorithm, t: float, health: Any) -> None:
+    """A Health with a level of OK, WARN or ERROR, a string message and string keys: what
+    diagnostic_msgs can carry, and what sweeps score."""
+    where = f'algorithm {alg.title} at t = {t:.3f} s: health()'
+    if not isinstance(health, Health):
+        raise AlgorithmError(f'{where} must return a Health or None, got '
+                             f'{type(health).__name__}')
+    if isinstance(health.level, bool) or health.level not in LEVEL_NAMES:
+        raise AlgorithmError(f'{where} level {health.level!r}: expected OK (0), WARN (1) or '
+                             'ERROR (2)')
+    if not isinstance(health.message, str):
+        raise AlgorithmError(f'{where} message must be a string, got '
+                             f'{type(health.message).__name__}')
+    if not isinstance(health.values, Mapping) or not all(isinstance(k, str)
+                                                         for k in health.values):
+        raise AlgorithmError(f'{where} values must map string keys to values')
 
 
 @dataclasses.dataclass
