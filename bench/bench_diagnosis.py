@@ -29,6 +29,7 @@ import numpy as np
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import LEVELS, severity_at, unit_signals
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, HEALTHY, UNEXPLAINED, diagnose
+from servovalve_twin.prognostics.metrics import detection_rates, interval_coverage
 
 SCENARIOS = {
     'paper': 'paper',
@@ -117,15 +118,19 @@ def main() -> None:
             print(f'| healthy | {len(rows)} | {len(right)} | - | - | {", ".join(other) or "-"} |')
             continue
         err = [abs(r['severity'] / r['truth'] - 1) for r in right]
-        held = [r['interval'][0] <= r['truth'] <= r['interval'][1] for r in right]
+        held = [interval_coverage([r['truth']], [r['interval']])['hits'] == 1 for r in right]
         cover_all += held
         e = (f'{statistics.median(err):.1%} / {np.percentile(err, 90):.1%}' if err else '-')
         print(f'| {f} | {len(rows)} | {len(right)} | {e} | {sum(held)}/{len(held)} | '
               f'{", ".join(other) or "-"} |')
     named = sum(r['named'] == r['fault'] for r in inside)
+    rates = detection_rates([r['fault'] != HEALTHY for r in inside],
+                            [r['named'] not in (HEALTHY,) for r in inside])
     print(f'\nnamed right {named}/{len(inside)} ({named / len(inside):.1%}); 90 % intervals '
           f'hold the truth in {sum(cover_all)}/{len(cover_all)} '
-          f'({np.mean(cover_all):.1%}) of the named faults')
+          f'({np.mean(cover_all):.1%}) of the named faults; false-alarm rate '
+          f'{rates["false_alarm_rate"]:.1%}, missed-detection rate '
+          f'{rates["missed_detection_rate"]:.1%}')
     print('\n| outside the hypotheses | units | wrong names | ... of them without the truth in '
           'also_consistent_with | verdicts |')
     print('|---|---|---|---|---|')

@@ -24,13 +24,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from progpy.metrics import alpha_lambda
-from progpy.predictors import ToEPredictionProfile
-from progpy.uncertain_data import UnweightedSamples
 
 from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.apps.diagnose import flight_entry
+from servovalve_twin.prognostics.metrics import alpha_lambda
 from servovalve_twin.prognostics.diagnosis import diagnose
 from servovalve_twin.prognostics.prognosis import prognose
 from servovalve_twin.prognostics.sweep import draw_nuisance, measured
@@ -79,10 +77,7 @@ def main() -> None:
             true_rul = eol - n
             ok = abs(p.rul['median'] - true_rul) <= ALPHA * true_rul
             # progpy's metric on the predicted end of life (cycle of the prediction + RUL)
-            profile = ToEPredictionProfile()
-            profile[float(n)] = UnweightedSamples([{'eol': n + d} for d in p.draws])
-            met = alpha_lambda(profile, {'eol': eol}, lambda_value=float(n), alpha=ALPHA,
-                               beta=BETA)['eol']
+            met = alpha_lambda({float(n): p.draws}, eol, float(n), alpha=ALPHA, beta=BETA)
             rows.append(dict(unit=u, eol=eol, lam=lam, n=n, true=true_rul, rul=p.rul,
                              trend=p.trend.kind, ok=ok, progpy=bool(met)))
         units.append((unit, eol, history))
