@@ -242,8 +242,13 @@ def test_integer_for_a_double_and_out_of_range_supply(ros_context):
     node = Plant(context=ros_context, parameter_overrides=[Parameter('M', value=400)])
     try:
         assert node.plant.params.M == 400.0
+        # ... and stored as the double it means: it reads back as one
+        m = node.get_parameter('M')
+        assert m.type_ == Parameter.Type.DOUBLE and m.value == 400.0
         assert node.set_parameters([Parameter('CJ', value=2500)])[0].successful
         assert node.plant.params.CJ == 2500.0
+        cj = node.get_parameter('CJ')
+        assert cj.type_ == Parameter.Type.DOUBLE and cj.value == 2500.0
         for bad in (-1.0, 1e300):
             node.io.push('psr', bad)
             assert node.io.latest['psr'] == node.params.PSRN        # dropped, not integrated

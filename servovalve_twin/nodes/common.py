@@ -106,6 +106,8 @@ class TwinNode(Node):
         # the parameter callbacks go live in start(): the subclass's own declarations are not
         # parameter *sets* and must not reach check/apply before the node is built
         self._started = False
+        doubles = {n for n in self.physical if PARAM_FIELDS[n].metadata['kind'] == 'float'}
+        self.add_pre_set_parameters_callback(lambda ps: integers_as_doubles(ps, doubles))
         self.add_on_set_parameters_callback(self._validate)
         self.add_post_set_parameters_callback(self._apply)
 
@@ -379,6 +381,18 @@ def declare_physical(node: Node, names: Iterable[str],
                                                             to_value=float(r['hi']), step=0.0)]
             default = 0.0 if r['derived'] else float(default)
         node.declare_parameter(name, default, desc)
+        value = node.get_parameter(name).value
+        if r['kind'] == 'float' and isinstance(value, int) and not isinstance(value, bool):
+            # `-p M:=400` given at start-up: stored as the double it means (before any
+            # parameter callback exists, so this is not a parameter *set*)
+            node.set_parameters([Parameter(name, Parameter.Type.DOUBLE, float(value))])
+
+
+def integers_as_doubles(params: list[Parameter], doubles) -> list[Parameter]:
+    """A pre-set callback's work: an integer given for a double parameter (``ros2 param set
+    /plant M 450``) becomes that double, so that it reads back as one."""
+    return [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            if p.name in doubles and p.type_ == Parameter.Type.INTEGER else p for p in params]
 
 
 def physical_from_node(node: Node, names: Iterable[str],
