@@ -40,7 +40,6 @@ class AnyBag:
     start_ns: int
     end_ns: int
     message_count: int
-    has_metadata: bool = False            # a metadata.yaml was read
     custom_data: dict[str, Any] = dataclasses.field(default_factory=dict)
     _provenance: Provenance | None = dataclasses.field(default=None, repr=False)
 
@@ -59,7 +58,8 @@ class AnyBag:
         if self._provenance is None:
             record: dict[str, str] = {}
             for f in self.files:
-                record = self.reader.metadata(f).get(PROVENANCE, {})
+                # open_any_bag's summary of every file verified its CRCs
+                record = self.reader.metadata(f, checked=True).get(PROVENANCE, {})
                 if record:
                     break
             record = record or from_custom_data(self.custom_data)
@@ -151,7 +151,7 @@ def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
     version = int(meta['version']) if meta and isinstance(meta.get('version'), int) else None
     return AnyBag(path=p, storage=storage, files=files, topics=topics, version=version,
                   start_ns=int(start), end_ns=int(end), message_count=count,
-                  has_metadata=meta is not None, custom_data=custom)
+                  custom_data=custom)
 
 
 def _listed_files(p: Path, meta: dict[str, Any]) -> tuple[str, list[Path]]:

@@ -104,8 +104,9 @@ class Storage:
         are inclusive; ``topics_out`` collects each topic's description as it is met."""
         raise NotImplementedError
 
-    def metadata(self, f: Path) -> dict[str, dict[str, str]]:
-        """The file's named metadata records (name -> string map); none by default."""
+    def metadata(self, f: Path, *, checked: bool = False) -> dict[str, dict[str, str]]:
+        """The file's named metadata records (name -> string map); none by default.
+        ``checked``: the file's checksums were verified already (by :meth:`summary`)."""
         return {}
 
 
@@ -222,11 +223,12 @@ class McapStorage(Storage):
             raise BagError(f'{str(f)!r} is truncated or corrupt ({type(exc).__name__}: '
                            f'{str(exc)[:120]}); try: servovalve-twin reindex') from None
 
-    def metadata(self, f: Path) -> dict[str, dict[str, str]]:
+    def metadata(self, f: Path, *, checked: bool = False) -> dict[str, dict[str, str]]:
         from mcap.reader import make_reader
         out: dict[str, dict[str, str]] = {}
         try:
-            check_data_crc(f)
+            if not checked:                     # the data CRC streams over the whole file
+                check_data_crc(f)
             with open(f, 'rb') as fh:
                 for meta in make_reader(fh, validate_crcs=True).iter_metadata():
                     out.setdefault(meta.name, dict(meta.metadata))
