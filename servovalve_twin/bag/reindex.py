@@ -70,8 +70,8 @@ def _chunk_records(body: bytes) -> list[Any]:
     return breakup_chunk(chunk, validate_crc=True)
 
 
-def _valid_chunk(body: bytes) -> tuple[int, int] | None:
-    """(start, end) log times of an intact chunk; None if it is damaged."""
+def _valid_chunk(body: bytes) -> tuple[int, int, list[Any]] | None:
+    """(start, end) log times and the records of an intact chunk; None if it is damaged."""
     from mcap.records import Chunk, Message
     try:
         chunk = Chunk.read(_stream(body))
@@ -80,8 +80,8 @@ def _valid_chunk(body: bytes) -> tuple[int, int] | None:
         return None
     times = [r.log_time for r in records if isinstance(r, Message)]
     if not times:
-        return chunk.message_start_time, chunk.message_end_time
-    return min(times), max(times)
+        return chunk.message_start_time, chunk.message_end_time, records
+    return min(times), max(times), records
 
 
 def scan_mcap(file: Path) -> Scan:
@@ -110,12 +110,13 @@ def scan_mcap(file: Path) -> Scan:
             ok = body_at + length <= size
             if ok and opcode == _CHUNK:
                 body = fh.read(length)
-                span = _valid_chunk(body)
-                ok = span is not None
+                valid = _valid_chunk(body)
+                ok = valid is not None
                 if ok:
-                    out.chunks.append(_Chunk(body_at, length, *span))
+                    start, end, records = valid
+                    out.chunks.append(_Chunk(body_at, length, start, end))
                     # a chunk may hold schemas and channels too
-                    for r in _chunk_records(body):
+                    for r in records:
                         if isinstance(r, Schema):
                             out.schemas.setdefault(r.id, r)
                         elif isinstance(r, Channel):
