@@ -30,7 +30,7 @@ t = time.perf_counter()
 from servovalve_twin.runs import simulate
 from servovalve_twin.config import load_scenario
 from servovalve_twin.physics import simulate as S
-from servovalve_twin.physics.plant import run_steps
+from servovalve_twin.physics.plant import run_steps_for
 from servovalve_twin.physics.servovalve import S_SIZE
 from servovalve_twin.physics.valves import get_valve_model
 imp = time.perf_counter() - t
@@ -48,7 +48,7 @@ loops = []
 for _ in range(repeat):
     out = np.full((n // 100 + 1, 12), np.nan); s = np.zeros(S_SIZE); vs = m.initial_state(p)
     t = time.perf_counter()
-    run_steps(m.id, s, vs, kern, start, com, fr, psr, 0, n, 0, 100, np.zeros(2), out, 1e-3)
+    run_steps_for(m.id)(s, vs, kern, start, com, fr, psr, 0, n, 0, 100, np.zeros(2), out, 1e-3)
     loops.append(time.perf_counter() - t)
 print(json.dumps(dict(first=first, walls=walls, loops=loops, steps=r.info['steps'], imp=imp)))
 '''

@@ -99,3 +99,26 @@ def test_numpy_numbers_in_a_scenario_become_plain_numbers():
     entry = scn.to_dict()['faults'][0]
     assert type(entry['at']) is float and type(entry['severity']) is float
     assert yaml.safe_load(yaml.safe_dump(scn.to_dict()))['faults'][0]['at'] == 0.05
+
+
+@pytest.mark.parametrize('n_points', [5, 300])
+def test_steps_in_chunks_equal_a_per_sample_lookup(n_points):
+    """A steps signal evaluated window by window (as simulate() does, chunk after chunk, each
+    looking up only its own breakpoints) equals an independent per-sample lookup: the value of
+    the last breakpoint at or before t. Windows that start on, just before and just after a
+    breakpoint, and windows with no breakpoint inside, are all covered; a window that took the
+    run's first value instead of the one in force at its start, or dropped its last
+    breakpoint, differs."""
+    from servovalve_twin.physics.scenario import Profile
+    rng = np.random.default_rng(3)
+    times = np.concatenate([[0], np.sort(rng.choice(np.arange(1, 10_000), n_points - 1,
+                                                    replace=False))]) * 1e-4
+    values = rng.normal(size=n_points)
+    prof = Profile('steps', tuple(zip(times.tolist(), values.tolist())))
+    t_ns = np.arange(0, 1_000_000_000, 10_000, dtype=np.int64)     # 1 s at 10 us
+    bp_ns = np.array([int(round(t * 1e9)) for t in times])
+    want = np.array([values[np.searchsorted(bp_ns, t, side='right') - 1] for t in t_ns])
+    for chunk in (1, 7, 997, 100_000):
+        got = np.concatenate([prof.values(t_ns[a:a + chunk])
+                              for a in range(0, t_ns.shape[0], chunk)])
+        np.testing.assert_array_equal(got, want, err_msg=f'chunk {chunk}')

@@ -49,27 +49,38 @@ def test_fault_applies_from_the_first_step_at_or_after_its_time():
 
 
 _PROBE = r'''
-import json, sys
+import hashlib, json, sys
 from servovalve_twin.runs import simulate
-from servovalve_twin.physics.plant import run_steps
-simulate(sys.argv[1], 'defaults')
-print(json.dumps(dict(hits=sum(run_steps.stats.cache_hits.values()),
-                      misses=sum(run_steps.stats.cache_misses.values()))))
+from servovalve_twin.physics.plant import run_steps_for
+from servovalve_twin.physics.valves import get_valve_model
+r = simulate(sys.argv[1], 'defaults')
+loop = run_steps_for(get_valve_model(sys.argv[1]).id)
+print(json.dumps(dict(hits=sum(loop.stats.cache_hits.values()),
+                      misses=sum(loop.stats.cache_misses.values()),
+                      p12=hashlib.sha256(r['p12'].tobytes()).hexdigest())))
 '''
 
 
-def test_a_second_process_loads_the_step_loop_from_the_disk_cache(tmp_path):
-    """With the valve model passed as a function object, numba compiled the loop again in
-    every process (1 s each); selected by its integer id, the loop is compiled once and the
-    next process loads it: no cache miss there, for any model."""
+def test_a_second_process_loads_each_models_step_loop_from_the_disk_cache(tmp_path):
+    """Each model has its own loop (the id a closure constant, :func:`run_steps_for`): it is
+    compiled once and the next process loads it, no cache miss. Run in the order C2, HD, C2,
+    HD on one cache directory, so that a cache keyed without the id (the closures share their
+    name and code) would hand C2's machine code to HD: each process's P12 must be that of
+    this process's own run of the model."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'numba'))
     runs = []
-    for model in ('C2', 'HD'):     # the first call compiles and writes the cache, the second
+    for model in ('C2', 'HD', 'C2', 'HD'):
         out = subprocess.run([sys.executable, '-c', _PROBE, model], env=env, check=True,
                              capture_output=True, text=True).stdout
-        runs.append(json.loads(out))
-    assert runs[0]['misses'] == 1 or runs[0]['hits'] == 1
-    assert runs[1] == {'hits': 1, 'misses': 0}, runs
+        runs.append((model, json.loads(out)))
+    for model, run in runs[:2]:
+        assert run['misses'] == 1 or run['hits'] == 1, (model, run)
+    for model, run in runs[2:]:
+        assert (run['hits'], run['misses']) == (1, 0), (model, run)
+    import hashlib
+    for model, run in runs:
+        want = hashlib.sha256(simulate(model, 'defaults')['p12'].tobytes()).hexdigest()
+        assert run['p12'] == want, model
 
 
 def test_physics_stamp_changes_with_any_physics_source(tmp_path, monkeypatch):

@@ -20,6 +20,9 @@ from .servovalve import S_DXJ, S_XJ, S_XS, servovalve_step
 from .valve_state import V_FAIL, V_P1, V_P2, V_XJ
 from .valves import valve_p12
 
+#: valve_p12 inlined where the id is a constant (run_steps_for): the other branches fold away
+valve_p12_inline = jit(inline='always')(valve_p12.py_func)
+
 # The loops select the valve model by its registry id (valves.valve_p12), so they are compiled
 # once, cached on disk, and loaded by every later process (servovalve_twin.jitcache).
 
@@ -48,60 +51,83 @@ def plant_step(model_id, s, vs, P, cor, fr, psr, integrate):
     return p12, qj
 
 
-@jit
-def run_steps(model_id, s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
-              carry, out, out_dt):
-    """Run the steps ``i0 .. i0 + len(com) - 1`` of a run of ``n`` steps; called chunk after
-    chunk, so that a run's inputs are never held whole. Step ``n`` is the end instant,
-    evaluated without integrating so that the last output row holds P12 at the end time.
+def run_steps_for(model_id: int):
+    """The step loop of the valve model with registry ``id`` = ``model_id`` (built once per
+    model and process, its machine code loaded from numba's disk cache).
 
-    ``com``, ``fr``, ``psr``: the inputs of those steps. ``ecu_every`` = 0 evaluates the ECU
-    every step (continuous); k > 0 samples it every k steps and holds Cor in between. Every
-    ``out_every`` steps, row ``i // out_every`` of :data:`OUT_COLUMNS` is written to ``out``
-    (t = row*``out_dt``). ``P_arr`` stacks :meth:`~.params.EhaParams.kernel_array` rows, one
-    per parameter segment (faults change parameters mid-run); row k is in force from step
-    ``seg_start[k]`` on. ``carry`` = [Cor, segment] is kept between chunks. Returns -1, or the
-    index of the step at which the valve model failed.
+    Why one loop per model: with the id an argument, the loop called :func:`valve_p12` out of
+    line every step (its arguments on the stack, every live register spilled, a reference
+    count taken and dropped on ``vs``). Here the id is a constant of the loop (a closure
+    variable; numba keys the cache on its value, so each model's loop is cached on its own)
+    and the valve function is inlined: the other models' branches fold away. The arithmetic is
+    that of :func:`plant_step`, in the same order, so the rows are bit-identical (tested
+    against :func:`run_tick`).
     """
-    cor = carry[0]
-    k = int(carry[1])
-    n_seg = seg_start.shape[0]
-    for j in range(com.shape[0]):
-        i = i0 + j
-        while k + 1 < n_seg and i >= seg_start[k + 1]:
-            k += 1
-        P = P_arr[k]
-        if ecu_every == 0 or i % ecu_every == 0:
-            cor = ecu_current(com[j], s[S_XJ], P)
-        xs = s[S_XS]
-        xj = s[S_XJ]
-        dxj = s[S_DXJ]
-        # plant_step, written out (see the module docstring)
-        qj = P.AJ * dxj
-        vs[V_XJ] = xj
-        p12 = valve_p12(model_id, xs, qj, psr[j] * P.PSR_scale, P, vs)
-        if i < n:
-            jack_step(s, p12, fr[j], P)
-            servovalve_step(s, cor, P)
-        if vs[V_FAIL] != 0.0:
-            return i
-        if i % out_every == 0:
-            row = i // out_every
-            out[row, 0] = row * out_dt
-            out[row, 1] = com[j]
-            out[row, 2] = fr[j]
-            out[row, 3] = psr[j]
-            out[row, 4] = cor
-            out[row, 5] = xs
-            out[row, 6] = xj
-            out[row, 7] = dxj
-            out[row, 8] = p12
-            out[row, 9] = qj
-            out[row, 10] = vs[V_P1]
-            out[row, 11] = vs[V_P2]
-    carry[0] = cor
-    carry[1] = k
-    return -1
+    return _RUN_STEPS[model_id] if model_id in _RUN_STEPS else _build_run_steps(model_id)
+
+
+_RUN_STEPS: dict = {}
+
+
+def _build_run_steps(model_id):
+    @jit
+    def run_steps(s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
+                  carry, out, out_dt):
+        """Run the steps ``i0 .. i0 + len(com) - 1`` of a run of ``n`` steps; called chunk
+        after chunk, so that a run's inputs are never held whole. Step ``n`` is the end
+        instant, evaluated without integrating so that the last output row holds P12 at the
+        end time.
+
+        ``com``, ``fr``, ``psr``: the inputs of those steps. ``ecu_every`` = 0 evaluates the
+        ECU every step (continuous); k > 0 samples it every k steps and holds Cor in between.
+        Every ``out_every`` steps, row ``i // out_every`` of :data:`OUT_COLUMNS` is written to
+        ``out`` (t = row*``out_dt``). ``P_arr`` stacks :meth:`~.params.EhaParams.kernel_array`
+        rows, one per parameter segment (faults change parameters mid-run); row k is in force
+        from step ``seg_start[k]`` on. ``carry`` = [Cor, segment] is kept between chunks.
+        Returns -1, or the index of the step at which the valve model failed.
+        """
+        cor = carry[0]
+        k = int(carry[1])
+        n_seg = seg_start.shape[0]
+        for j in range(com.shape[0]):
+            i = i0 + j
+            while k + 1 < n_seg and i >= seg_start[k + 1]:
+                k += 1
+            P = P_arr[k]
+            if ecu_every == 0 or i % ecu_every == 0:
+                cor = ecu_current(com[j], s[S_XJ], P)
+            xs = s[S_XS]
+            xj = s[S_XJ]
+            dxj = s[S_DXJ]
+            # plant_step, written out (see the module docstring)
+            qj = P.AJ * dxj
+            vs[V_XJ] = xj
+            p12 = valve_p12_inline(model_id, xs, qj, psr[j] * P.PSR_scale, P, vs)
+            if i < n:
+                jack_step(s, p12, fr[j], P)
+                servovalve_step(s, cor, P)
+            if vs[V_FAIL] != 0.0:
+                return i
+            if i % out_every == 0:
+                row = i // out_every
+                out[row, 0] = row * out_dt
+                out[row, 1] = com[j]
+                out[row, 2] = fr[j]
+                out[row, 3] = psr[j]
+                out[row, 4] = cor
+                out[row, 5] = xs
+                out[row, 6] = xj
+                out[row, 7] = dxj
+                out[row, 8] = p12
+                out[row, 9] = qj
+                out[row, 10] = vs[V_P1]
+                out[row, 11] = vs[V_P2]
+        carry[0] = cor
+        carry[1] = k
+        return -1
+
+    _RUN_STEPS[model_id] = run_steps
+    return run_steps
 
 
 @jit

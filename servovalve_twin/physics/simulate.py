@@ -1,6 +1,6 @@
 """ROS-free runs: :func:`simulate` (a whole scenario in one compiled call) and :class:`EhaPlant`
 (the stateful plant the ROS node advances one control period at a time). Both go through
-:func:`~.plant.plant_step` (:func:`~.plant.run_steps` and :func:`~.plant.run_tick`).
+:func:`~.plant.plant_step` (:func:`~.plant.run_steps_for` and :func:`~.plant.run_tick`).
 
 Run conventions (doc/design/MODELS.md section 9): time is an integer count of DT steps; inputs
 are held
@@ -22,15 +22,17 @@ from ..errors import ModelError, ParameterError
 from .ecu import ecu_current_py
 from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams
-from .plant import OUT_COLUMNS, TICK_OUT, run_steps, run_tick
+from .plant import OUT_COLUMNS, TICK_OUT, run_steps_for, run_tick
 from .scenario import Scenario, as_scenario
 from .servovalve import PLANT_STATE, S_DXJ, S_SIZE, S_XJ, S_XS
 from .valves import ValveModel, get_valve_model
 
 OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
 #: steps per chunk: simulate() evaluates the inputs and runs the compiled loop chunk by chunk,
-#: so its memory is that of the output rows plus one chunk (~0.5 MB), whatever the run's length
-CHUNK_STEPS = 1 << 14
+#: so its memory is that of the output rows plus one chunk (~2 MB), whatever the run's length;
+#: 2**16 rather than 2**14 steps: fewer chunk entries (numpy calls, the loop call) per run;
+#: 2**17 measured no faster here (bench_physics, interleaved)
+CHUNK_STEPS = 1 << 16
 CSV_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj')
 PORT_COLUMNS = ('p1', 'p2')
 SIGNAL_UNITS = dict(t='s', com='m', fr='N', psr='Pa', cor='A', xs='m', xj='m', dxj='m/s',
@@ -126,12 +128,13 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     steps = np.arange(min(CHUNK_STEPS, n_steps + 1), dtype=np.int64)
     t_buf = np.empty_like(steps)
     u_buf = np.empty((3, steps.shape[0]))
+    run_steps = run_steps_for(model.id)
     for i0 in range(0, n_steps + 1, CHUNK_STEPS):
         m = min(CHUNK_STEPS, n_steps + 1 - i0)
         t_ns = np.add(steps[:m], i0, out=t_buf[:m])
         t_ns *= p.dt_ns
         com, fr, psr = scn.inputs(t_ns, u_buf[:, :m])
-        failed = run_steps(model.id, s, vs, kernels, seg_start, com, fr, psr, i0, n_steps,
+        failed = run_steps(s, vs, kernels, seg_start, com, fr, psr, i0, n_steps,
                            ecu_every, out_every, carry, out, OUTPUT_PERIOD_NS * 1e-9)
         if failed >= 0:
             raise ModelError(f'valve model {model.name} failed to converge at t = '
