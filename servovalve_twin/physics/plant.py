@@ -6,11 +6,11 @@ One step from t to t + DT, with inputs held over the step (zero-order hold):
 1. the valve model turns the state at t (XS, QJ = AJ*DXJ) and PSR into P12;
 2. the jack integrates under P12 and FR; the servovalve under the current Cor.
 
-Both the ROS-free :func:`~.simulate.simulate` (through :func:`run_steps`) and the ROS plant node
-(through :func:`run_tick`) take this step: :func:`plant_step`, which :func:`run_steps` writes
-out in its loop body because as a call there it ran twice as slow (measured; numba did not keep
-the state in registers across it). The tests hold the two to the last bit (a ROS run equals a
-ROS-free run, every column).
+Both the ROS-free :func:`~.simulate.simulate` (through :func:`run_steps_for`) and the ROS
+plant node (through :func:`run_tick`) take this step: :func:`plant_step`, which the loops of
+:func:`run_steps_for` write out in their body because as a call there it ran twice as slow
+(measured; numba did not keep the state in registers across it). The tests hold the two to
+the last bit (a ROS run equals a ROS-free run, every column).
 """
 
 from ..jitcache import jit
@@ -23,10 +23,11 @@ from .valves import valve_p12
 #: valve_p12 inlined where the id is a constant (run_steps_for): the other branches fold away
 valve_p12_inline = jit(inline='always')(valve_p12.py_func)
 
-# The loops select the valve model by its registry id (valves.valve_p12), so they are compiled
-# once, cached on disk, and loaded by every later process (servovalve_twin.jitcache).
+# The loops select the valve model by its registry id (valves.valve_p12: an argument of
+# run_tick, a closure constant of run_steps_for's loops), so they are compiled once, cached on
+# disk, and loaded by every later process (servovalve_twin.jitcache).
 
-# columns of the rows written by run_steps
+# columns of the rows written by run_steps_for's loops
 OUT_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj', 'p1', 'p2')
 TICK_OUT = ('p12', 'qj', 'p1', 'p2')
 
