@@ -13,6 +13,8 @@ plant node (through :func:`run_tick`) take this step: :func:`plant_step`, which 
 the last bit (a ROS run equals a ROS-free run, every column).
 """
 
+import functools
+
 from ..jitcache import jit
 from .ecu import ecu_current
 from .jack import jack_step
@@ -52,6 +54,7 @@ def plant_step(model_id, s, vs, P, cor, fr, psr, integrate):
     return p12, qj
 
 
+@functools.lru_cache(maxsize=None)
 def run_steps_for(model_id: int):
     """The step loop of the valve model with registry ``id`` = ``model_id`` (built once per
     model and process, its machine code loaded from numba's disk cache).
@@ -64,13 +67,6 @@ def run_steps_for(model_id: int):
     that of :func:`plant_step`, in the same order, so the rows are bit-identical (tested
     against :func:`run_tick`).
     """
-    return _RUN_STEPS[model_id] if model_id in _RUN_STEPS else _build_run_steps(model_id)
-
-
-_RUN_STEPS: dict = {}
-
-
-def _build_run_steps(model_id):
     @jit
     def run_steps(s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
                   carry, out, out_dt):
@@ -127,7 +123,6 @@ def _build_run_steps(model_id):
         carry[1] = k
         return -1
 
-    _RUN_STEPS[model_id] = run_steps
     return run_steps
 
 
