@@ -14,6 +14,7 @@ setup(
     packages=find_packages(exclude=['test', 'test.*']),
     # the HD reference bag of the paper scenario, read-only to every command (servovalve-twin
     # compare @paper_HD RUN); the diagnosis' model-form calibration (bench/calibrate_diagnosis.py)
+    # and the monitor's thresholds (bench/calibrate_monitor.py)
     package_data={'servovalve_twin': ['data/paper_HD/*', 'data/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),

@@ -54,12 +54,28 @@ def main() -> None:
     ap.add_argument('--units', type=int, default=4, help='units per fault, level, scenario')
     ap.add_argument('--seed', type=int, default=7)
     ap.add_argument('--out', default=str(CALIBRATION_FILE))
+    ap.add_argument('--records', default='out/calibration_records.json',
+                    help='where the diagnosed units are kept (the expensive part)')
+    ap.add_argument('--refit', action='store_true',
+                    help='fit the calibration again from --records, diagnosing nothing')
     args = ap.parse_args()
     jobs = calibration_jobs(args.units, args.seed)
-    unit_signals(None, 0.0, 'paper', 0)                 # compile in the parent, not per worker
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        results = list(pool.map(one, jobs, chunksize=2))
+    if args.refit:
+        with open(args.records, encoding='utf-8') as fh:
+            kept = json.load(fh)
+        if kept['jobs'] != [list(j) for j in jobs]:
+            sys.exit(f'{args.records} holds another calibration set (units, seed or scenarios '
+                     'differ); run without --refit')
+        results = [{tuple(json.loads(k)): v for k, v in r.items()} for r in kept['results']]
+    else:
+        unit_signals(None, 0.0, 'paper', 0)             # compile in the parent, not per worker
+        with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            results = list(pool.map(one, jobs, chunksize=2))
+        os.makedirs(os.path.dirname(args.records) or '.', exist_ok=True)
+        with open(args.records, 'w', encoding='utf-8') as fh:
+            json.dump(dict(jobs=jobs, results=[{json.dumps(list(k)): v for k, v in r.items()}
+                                               for r in results]), fh)
     out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units,
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
                           spread=SPREAD,

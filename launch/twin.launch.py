@@ -2,7 +2,7 @@
 
     ros2 launch servovalve_twin twin.launch.py valve_model:=HD scenario:=paper rate:=1.0
 
-It also starts the monitor node (``monitor_model:=C2``) beside the plant. The ECU and the plant
+It also starts the monitor node (``monitor_model:=SQ``, the default) beside the plant. The ECU and the plant
 are essential: when either exits (a bad parameter at start-up, say) the whole launch ends.
 
 A ``clock`` process publishes ``/clock`` at ``rate`` simulated seconds per wall second; every
@@ -22,6 +22,7 @@ from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
 from servovalve_twin.physics.valves import VALVE_MODEL_NAMES      # the one registry
+from servovalve_twin.prognostics.monitor import DEFAULT_MONITOR_MODEL
 
 
 def generate_launch_description():
@@ -42,7 +43,7 @@ def generate_launch_description():
                               description='simulated seconds per wall second'),
         DeclareLaunchArgument('control_period', default_value='0.001',
                               description='control period [s] of every node'),
-        DeclareLaunchArgument('monitor_model', default_value='C2',
+        DeclareLaunchArgument('monitor_model', default_value=DEFAULT_MONITOR_MODEL,
                               description='simplified model of the monitor node'),
         Node(package='servovalve_twin', executable='clock', name='clock', output='screen',
              parameters=[{'rate': ParameterValue(rate, value_type=float),

@@ -265,6 +265,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .apps.compare import write_json
     from .apps.diagnose import diagnose_bag, parse_faults, parse_window, plot_diagnosis
     free = tuple(n.strip() for n in (args.free or '').split(',') if n.strip())
+    if args.limits is not None:
+        return _print_limits(args, free, parse_faults(args.faults))
+    if args.bag is None or args.json is None:
+        raise TwinError('diagnose needs BAG and --json FILE (or --limits SCENARIO for the '
+                        'detection limits of an excitation)')
     if args.bootstrap < 0:
         raise TwinError(f'--bootstrap must be >= 0, got {args.bootstrap}')
     t = time.perf_counter()
@@ -294,6 +299,95 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         sev = ' ' + '/'.join(f'{s:.4g}' for s in c.severities) if c.severities else ''
         extra = ''.join(f' {k}x{v:.3f}' for k, v in c.free.items())
         print(f'  {c.fault:24s}{sev:>10s}  score {c.score:10.1f}{extra}')
+    return 0
+
+
+def _print_limits(args: argparse.Namespace, free: tuple[str, ...],
+                  faults: Sequence[str]) -> int:
+    """``diagnose --limits SCENARIO``: each fault's detection limit and resolution."""
+    from .apps.compare import write_json
+    from .config import load_scenario
+    from .physics.simulate import effective_params
+    from .prognostics.excitation import detection_limits, format_limits
+    scn = load_scenario(args.limits)
+    design = effective_params(scn, _overrides(args))
+    lims = detection_limits(scn, design, model=args.model, free=free, faults=faults,
+                            control_period=args.control_period or 1e-3)
+    if args.json:
+        write_json(args.json, dict(scenario=scn.name, model=args.model, free=list(free),
+                                   limits=[x.to_json() for x in lims]))
+    print(format_limits({scn.name: lims}))
+    return 0
+
+
+def cmd_bit(args: argparse.Namespace) -> int:
+    import yaml
+    from .apps.compare import write_json
+    from .prognostics.excitation import RigLimits, design_bit, detection_limits, format_limits
+    out = Path(args.out)
+    if out.suffix not in ('.yaml', '.yml'):
+        raise TwinError(f'--out {args.out!r}: expected a new .yaml file')
+    if out.exists() or out.is_symlink():
+        raise TwinError(f'--out {args.out!r} exists; bit writes a new file only')
+    from .physics.params import DEFAULTS
+    design = DEFAULTS.replace(**_overrides(args))
+    rig = RigLimits(stroke=args.max_stroke, load=args.max_load, rate=args.max_rate)
+    scn, crit = design_bit(args.duration, rig, design=design, seed=args.seed)
+    text = ('# A pre-flight built-in test designed by `servovalve-twin bit` (see '
+            'servovalve_twin.prognostics.excitation):\n# fly it, record it, and '
+            '`servovalve-twin diagnose` the bag.\n'
+            + yaml.safe_dump(scn, sort_keys=False, default_flow_style=None, width=100))
+    fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_NOFOLLOW', 0),
+                 0o644)
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(text)
+    except BaseException:
+        out.unlink(missing_ok=True)            # ours: a half-written test is no test
+        raise
+    lims = {'paper': detection_limits('paper', design),
+            out.stem: detection_limits(scn, design)}
+    if args.json:
+        write_json(args.json, dict(criterion=crit, scenario=str(out),
+                                   limits={k: [x.to_json() for x in v] for k, v in lims.items()}))
+    print(format_limits(lims))
+    met = all(x.detects_mild for x in lims[out.stem])
+    print(f'{out}: {scn["duration"]:g} s; design criterion {crit:+.3f} (>= 0: every fault '
+          f'detected and told apart at its mild severity, linearised); mild severities '
+          f'{"all" if met else "not all"} above the limits on it')
+    return 0
+
+
+def cmd_monitor_thresholds(args: argparse.Namespace) -> int:
+    import yaml
+    from .prognostics.monitor import (DEFAULT_MONITOR_MODEL, calibrate_thresholds,
+                                      healthy_peaks, monitor_cal_flights)
+    from .physics.valves import get_monitor_model
+    model = args.monitor_model or DEFAULT_MONITOR_MODEL
+    get_monitor_model(model)
+    for name, value in (('--units', args.units), ('--far-error', args.far_error),
+                        ('--far-warn', args.far_warn)):
+        if not (value > 0) or (name != '--units' and not value < 1):
+            raise TwinError(f'{name} {value!r}: allowed ' + ('>= 1' if name == '--units'
+                                                              else '(0, 1)'))
+    if not args.far_error <= args.far_warn:
+        raise TwinError('--far-error must not exceed --far-warn (ERROR is the rarer level)')
+    out = Path(args.out)
+    if out.exists() or out.is_symlink():
+        raise TwinError(f'--out {args.out!r} exists; monitor-thresholds writes a new file only')
+    flights = ({Path(s).stem: s for s in args.scenario} if args.scenario
+               else monitor_cal_flights())
+    peaks = healthy_peaks((model,), flights, args.units, args.seed)[model]
+    th = calibrate_thresholds(peaks, rates={'warn': args.far_warn, 'error': args.far_error})
+    text = (f'# monitor thresholds for {model}: healthy HD units ({args.units} per flight, seed '
+            f'{args.seed}) on {", ".join(flights)};\n# per-flight false-alarm rates ERROR '
+            f'{args.far_error:g}, WARN {args.far_warn:g}. Use: ros2 run servovalve_twin monitor '
+            '--ros-args --params-file THIS\n'
+            + yaml.safe_dump({'monitor': {'ros__parameters': dict(monitor_model=model, **th)}},
+                             sort_keys=False))
+    with open(out, 'x', encoding='utf-8') as fh:
+        fh.write(text)
+    print(text, end='')
     return 0
 
 
@@ -492,7 +586,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise TwinError(f'--repeats must be >= 1, got {args.repeats}')
     if args.workers is not None and args.workers < 1:
         raise TwinError(f'--workers must be >= 1, got {args.workers}')
-    cases = make_cases(plant_model=args.plant_model, monitor_model=args.monitor_model,
+    from .prognostics.monitor import DEFAULT_MONITOR_MODEL
+    cases = make_cases(plant_model=args.plant_model,
+                       monitor_model=args.monitor_model or DEFAULT_MONITOR_MODEL,
                        scenario=args.scenario, faults=grid, ranges=ranges, draws=args.draws,
                        nominal_runs=args.nominal, repeats=args.repeats,
                        vary=_parse_vary(args.vary), onset=args.onset, seed=args.seed,
@@ -619,8 +715,9 @@ def build_parser() -> argparse.ArgumentParser:
                                      'a labelled dataset for prognostics')
     p.add_argument('--plant-model', default='HD', metavar='NAME',
                    help='the valve model of the simulated actuators (default HD)')
-    p.add_argument('--monitor-model', default='C2', metavar='NAME',
-                   help='the simplified model of the monitor (default C2)')
+    p.add_argument('--monitor-model', metavar='NAME',
+                   help='the simplified model of the monitor (default SQ, whose calibrated '
+                        'thresholds still see the catalog faults; C2 misses most)')
     p.add_argument('--algorithm', metavar='MOD:CLASS',
                    help='score your Algorithm (its ERROR health = detection) instead of the '
                         'monitor')
@@ -682,9 +779,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('diagnose', help='which catalog fault, how severe: a simplified model '
                                         'fitted to a recorded bag')
-    p.add_argument('bag', metavar='BAG', help='bag directory, .mcap or .db3 file')
+    p.add_argument('bag', metavar='BAG', nargs='?',
+                   help='bag directory, .mcap or .db3 file')
     p.add_argument('--model', default='SQ', metavar='SQ|C2|...',
                    help='the simplified model fitted (default SQ)')
+    p.add_argument('--limits', metavar='SCENARIO',
+                   help="instead of a bag: each fault's detection limit and severity "
+                        'resolution on this excitation (a built-in name or a YAML file)')
     p.add_argument('--faults', metavar='NAMES|all', help='comma-separated hypotheses (default '
                    'all the catalog faults a simplified model can see)')
     p.add_argument('--window', metavar='T0:T1', help='fit the rows in [T0, T1] s (default the '
@@ -702,9 +803,42 @@ def build_parser() -> argparse.ArgumentParser:
     _add_param_options(p)
     p.add_argument('--control-period', type=_positive_float, metavar='S',
                    help="the ECU's period of the run (default: the bag's, else 1 ms)")
-    p.add_argument('--json', required=True, metavar='FILE', help='the diagnosis as JSON')
+    p.add_argument('--json', metavar='FILE', help='the diagnosis as JSON (needed with BAG)')
     p.add_argument('--plot', metavar='FILE.png', help='recorded against fitted signals')
     p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser('monitor-thresholds', help="the monitor's thresholds for a stated "
+                       'false-alarm rate, from healthy HD units on your flights')
+    p.add_argument('--monitor-model', metavar='NAME', help='default SQ')
+    p.add_argument('--scenario', action='append', default=[], metavar='NAME|FILE.yaml',
+                   help='a flight of the calibration set (repeatable; default the built-in '
+                        'set: every built-in scenario, chirps, random steps)')
+    p.add_argument('--units', type=int, default=4, help='healthy units per flight (default 4)')
+    p.add_argument('--seed', type=int, default=11, help="seed of the units' nuisance and noise")
+    p.add_argument('--far-error', type=float, default=1e-3, metavar='P',
+                   help='per-flight false-alarm rate of ERROR (default 1e-3)')
+    p.add_argument('--far-warn', type=float, default=1e-2, metavar='P',
+                   help='per-flight false-alarm rate of WARN (default 1e-2)')
+    p.add_argument('--out', required=True, metavar='FILE.yaml',
+                   help='a ROS 2 parameters file for the monitor node (a new file)')
+    p.set_defaults(func=cmd_monitor_thresholds)
+
+    p = sub.add_parser('bit', help='design a pre-flight built-in test that reveals every '
+                                   'catalog fault at its mild severity')
+    p.add_argument('--out', required=True, metavar='FILE.yaml', help='the scenario (a new file)')
+    p.add_argument('--duration', type=float, default=2.0, metavar='S',
+                   help='length of the test [s] (default 2)')
+    p.add_argument('--max-stroke', type=float, default=0.04, metavar='M',
+                   help='largest |Com| the rig allows [m] (default 0.04)')
+    p.add_argument('--max-load', type=float, default=6000.0, metavar='N',
+                   help='largest |FR| the rig applies [N] (default 6000; 0: no load rig)')
+    p.add_argument('--max-rate', type=float, metavar='M/S',
+                   help='largest command rate [m/s] (default: steps)')
+    p.add_argument('--seed', type=int, default=0, help='seed of the design search')
+    _add_param_options(p)
+    p.add_argument('--json', metavar='FILE', help='the limits on the paper scenario and on '
+                   'the test, as JSON')
+    p.set_defaults(func=cmd_bit)
 
     p = sub.add_parser('prognose', help='trend a fault over flights (bags) and predict the '
                                         'remaining useful life')

@@ -46,7 +46,6 @@ MAX_YAML_BYTES = 1_000_000
 def read_yaml(path: Path, what: str) -> Any:
     """A YAML file as data: UTF-8, at most :data:`MAX_YAML_BYTES`, and without anchors or
     aliases (a scenario needs none, and a 450-byte alias bomb expands to gigabytes)."""
-    import yaml
     try:
         with open(path, 'rb') as fh:
             raw = fh.read(MAX_YAML_BYTES + 1)

@@ -46,6 +46,18 @@ def test_fit_calibration_recovers_a_known_bias_and_spread():
     assert c['sigma'] == pytest.approx(0.04, rel=0.1)
 
 
+def test_few_units_are_held_at_the_conformal_rank():
+    """Nine units: a new unit is held with probability >= 90 % only if the interval holds
+    ceil(0.9*10) = 9 of them -- all nine, the largest error included (a plain 90 % of nine
+    would leave it out)."""
+    errs = [-0.3, -0.1, -0.05, -0.02, 0.0, 0.01, 0.04, 0.08, 0.6]
+    rec = [dict(fault='leakage_growth', truth=2.0, named='leakage_growth',
+                estimate=2.0 * math.exp(e), se=0.0, rms=1.0) for e in errs]
+    c = fit_calibration(rec)['faults']['leakage_growth']
+    assert c['bias'] == pytest.approx(0.0)
+    assert c['sigma'] * 1.6449 == pytest.approx(0.6, rel=1e-3)
+
+
 def test_the_goodness_of_fit_p_value_counts_the_reference():
     cal = {'rms': [1.0, 2.0, 3.0, 4.0]}
     assert gof_p_value(cal, 0.5) == 1.0

@@ -197,6 +197,37 @@ def test_hd_unit_with_two_faults_is_diagnosed_as_the_pair():
     assert d.best.severity == pytest.approx([0.3, 0.5], rel=0.10)
 
 
+def test_two_faults_without_pairs_are_unexplained_not_a_single_name():
+    """The same two-fault HD unit without --pairs: the single supply loss fits best of the
+    singles, but the verdict's second look pairs it with every other fault and finds the pair
+    far better -- the verdict is `unexplained` (no severity), the pair second among the
+    candidates with both severities near the truth, a warning naming --pairs."""
+    scn = dict(PAPER, faults=[{'at': 0.0, 'fault': 'torque_motor_gain_loss', 'severity': 0.5},
+                              {'at': 0.0, 'fault': 'supply_loss', 'severity': 0.3}])
+    run = simulate('HD', scn, ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ')
+    assert d.verdict == UNEXPLAINED
+    j = d.to_json()
+    assert j['fault'] == UNEXPLAINED and j['severity'] is None
+    pair = d.candidates[1]
+    assert pair.fault == 'supply_loss+torque_motor_gain_loss'
+    assert pair.severity == pytest.approx([0.3, 0.5], rel=0.15)
+    assert any('--pairs' in w for w in d.warnings)
+
+
+def test_a_single_hd_fault_passes_the_second_look():
+    """One fault (leakage 4 x on a steps-and-load flight, nuisance at 1.5 x its spread): the
+    pair with a dynamic friction of 1.74 x beats it by 40 (the nuisance FDJ and SQ's mismatch),
+    but that is below the mild size (2.25 x): the single fault stays the verdict."""
+    steps = dict(name='eval_steps', duration=1.0,
+                 com=[[0.0, 0.0], [0.05, -0.025], [0.3, 0.02], [0.6, -0.005]],
+                 fr=[[0.0, 0.0], [0.15, -2500.0], [0.45, 3500.0], [0.75, 1000.0]],
+                 psr=[[0.0, 2.0e7], [0.5, 1.8e7]])
+    sig, _, _ = calibration.unit_signals('leakage_growth', 0.6, steps, 500, spread=1.5)
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'))
+    assert d.verdict != UNEXPLAINED and d.best.fault == 'leakage_growth'
+
+
 def test_linear_trend_and_rul_against_hand_computation():
     """s = 1 + 0.5 n, observed at n = 0..5 with tight intervals: the threshold 10 is crossed
     at n = 18, so the RUL after the last flight is 13 cycles."""

@@ -50,3 +50,104 @@ def test_a_plausible_run_drops_nothing(clean):
     alg = MonitorAlgorithm()
     run_algorithm(alg, t_ns, u, 1e-3, DEFAULTS)
     assert alg.dropped == 0 and 'dropped' not in alg.health().message
+
+
+# -- thresholds set for a stated false-alarm rate --------------------------------------------
+
+def test_gumbel_quantile_against_the_closed_form():
+    """Samples of a known Gumbel law: the fitted quantile is the law's own,
+    mu - beta*ln(-ln(1 - p))."""
+    from servovalve_twin.prognostics.monitor import gumbel_quantile
+    rng = np.random.default_rng(5)
+    mu, beta = 2.0, 0.5
+    x = rng.gumbel(mu, beta, 200_000)
+    for p in (1e-2, 1e-3 / 3):
+        exact = mu - beta * np.log(-np.log1p(-p))
+        assert gumbel_quantile(x, p) == pytest.approx(exact, rel=0.01)
+
+
+def test_thresholds_hold_their_false_alarm_rate_on_gumbel_peaks():
+    """Peaks of a known Gumbel law: a fresh peak exceeds one residual's ERROR threshold with a
+    third of the per-flight rate (the law's own exceedance, 1 - exp(-exp(-(x - mu)/beta)));
+    and no threshold lies below a healthy peak it was calibrated on."""
+    from servovalve_twin.prognostics.monitor import RESIDUALS, calibrate_thresholds
+    rng = np.random.default_rng(6)
+    mu, beta = 1.0, 0.1
+    peaks = {s: rng.gumbel(mu, beta, 200_000) for s in RESIDUALS}
+    th = calibrate_thresholds(peaks, rates={'warn': 3e-6, 'error': 3e-7})
+    for level, rate in (('warn', 3e-6), ('error', 3e-7)):
+        x = th[f'{level}_dxj']
+        exceed = -np.expm1(-np.exp(-(x - mu) / beta))
+        assert exceed == pytest.approx(rate / 3, rel=0.05)
+    assert th['warn_p12'] < th['error_p12']
+    few = {s: rng.gumbel(mu, beta, 30) for s in RESIDUALS}
+    th = calibrate_thresholds(few, rates={'warn': 0.9, 'error': 0.6})
+    assert th['warn_xj'] == th['error_xj'] == few['xj'].max()
+
+
+def test_the_packaged_thresholds_are_those_the_calibration_gives():
+    """bench/calibrate_monitor.py's settings reproduce the packaged file: a model or a flight
+    changed without recalibrating fails here."""
+    import json
+    from servovalve_twin.physics.valves import MONITOR_MODEL_NAMES
+    from servovalve_twin.prognostics.monitor import (MONITOR_CALIBRATION_FILE,
+                                                     calibrate_thresholds, healthy_peaks,
+                                                     monitor_cal_flights)
+    packaged = json.loads(MONITOR_CALIBRATION_FILE.read_text())
+    about = packaged['about']
+    flights = monitor_cal_flights()
+    assert sorted(flights) == about['flights']
+    peaks = healthy_peaks(('SQ', 'C2'), flights, about['units'], about['seed'],
+                          spread=about['spread'])
+    for m in ('SQ', 'C2'):
+        got = calibrate_thresholds(peaks[m])
+        for k, v in packaged['thresholds'][m].items():
+            assert got[k] == pytest.approx(v, rel=1e-9), (m, k)
+    assert set(packaged['thresholds']) == set(MONITOR_MODEL_NAMES)
+
+
+def test_no_false_alarm_on_unseen_flights_and_a_3x_leak_is_seen():
+    """Healthy HD units with nuisance at 1.5 x the documented spread on flights the
+    calibration never flew (another chirp, other random steps under load, noise 2 x): the
+    default monitor stays below ERROR; a 3 x leakage on the paper's flight reaches it."""
+    from servovalve_twin.config import load_scenario
+    from servovalve_twin.prognostics.calibration import NOISE, VARY
+    from servovalve_twin.prognostics.monitor import (ERROR, _chirp, monitor_run,
+                                                     random_steps)
+    from servovalve_twin.prognostics.sweep import draw_nuisance, measured
+    rng = np.random.default_rng(77)
+    noise = {k: 2 * v for k, v in NOISE.items()}
+    for flight in (_chirp(0.3, 8.0, 0.025, 2.0, -4000.0), random_steps(77), random_steps(78)):
+        unit = DEFAULTS.replace(**draw_nuisance(rng, {k: 1.5 * v for k, v in VARY.items()},
+                                                DEFAULTS))
+        run = simulate('HD', flight, params=unit)
+        run.signals.update(measured(run.signals, noise, rng))
+        assert monitor_run(run, nominal=DEFAULTS).first_alarm(ERROR) is None, flight['name']
+    leak = dict(load_scenario('paper').to_dict(),
+                faults=[dict(at=0.1, fault='leakage_growth', severity=3.0)])
+    assert monitor_run(simulate('HD', leak), nominal=DEFAULTS).first_alarm(ERROR) is not None
+
+
+def test_monitor_thresholds_command_writes_a_params_file(tmp_path, capsys):
+    import yaml
+    from servovalve_twin.cli import main
+    from servovalve_twin.prognostics.monitor import HealthConfig
+    out = tmp_path / 'mt.yaml'
+    assert main(['monitor-thresholds', '--scenario', 'paper', '--units', '2',
+                 '--out', str(out)]) == 0
+    params = yaml.safe_load(out.read_text())['monitor']['ros__parameters']
+    assert params.pop('monitor_model') == 'SQ'
+    HealthConfig(**params)                               # ordered, positive window
+    before = out.read_bytes()
+    for args, fragment in ((['--out', str(out)], 'exists'),
+                           (['--far-error', 'nan', '--out', str(tmp_path / 'b.yaml')],
+                            '--far-error nan'),
+                           (['--far-error', '0.1', '--far-warn', '0.01', '--out',
+                             str(tmp_path / 'b.yaml')], 'must not exceed'),
+                           (['--monitor-model', 'HD', '--out', str(tmp_path / 'b.yaml')],
+                            'HD')):
+        capsys.readouterr()
+        assert main(['monitor-thresholds', *args]) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and err.count('\n') == 1, err
+    assert out.read_bytes() == before and not (tmp_path / 'b.yaml').exists()

@@ -111,7 +111,7 @@ def test_monitor_is_silent_on_the_nominal_paper_scenario(model):
 def test_monitor_alarms_on_each_fault_at_its_documented_severity(fault):
     onset = 0.1
     r = faulted(fault, FAULTS[fault].demo, at=onset)
-    m = monitor_run(r, 'C2', nominal=DEFAULTS)
+    m = monitor_run(r, nominal=DEFAULTS)          # the default monitor, calibrated thresholds
     alarm = m.first_alarm(ERROR)
     warn = m.first_alarm(WARN)
     cfg = m.config
@@ -142,8 +142,9 @@ def test_health_thresholds_are_ordered():
 
 def test_health_filter_matches_the_array_assessment():
     from servovalve_twin.prognostics.monitor import HealthFilter
-    m = monitor_run(faulted('leakage_growth', 10.0, at=0.1), 'C2', nominal=DEFAULTS)
-    f = HealthFilter(HealthConfig(), 1e-3)
+    m = monitor_run(faulted('leakage_growth', 10.0, at=0.1), nominal=DEFAULTS)
+    assert {OK, WARN, ERROR} <= set(m.level.tolist())
+    f = HealthFilter(m.config, 1e-3)
     levels = [f.update({s: m.residuals[s][i] for s in m.residuals})[0]
               for i in range(len(m.t))]
     np.testing.assert_array_equal(levels, m.level)

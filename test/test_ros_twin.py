@@ -199,14 +199,14 @@ def test_bad_twin_configuration_is_an_error(ros_context):
 
 
 def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_path):
-    """With a fault scheduled in the scenario: the twin (plant HD + monitor C2) equals simulate,
+    """With a fault scheduled in the scenario: the twin (plant HD + monitor SQ) equals simulate,
     its residuals and health equal the ROS-free monitor, /diagnostics goes OK -> ERROR."""
     from servovalve_twin.bag.reader import read_bag
     from servovalve_twin.prognostics.monitor import monitor_run
     from servovalve_twin.config import load_scenario
     raw = load_scenario('paper').to_dict()
     raw['faults'] = [{'at': 0.2, 'fault': 'leakage_growth', 'severity': 10.0}]
-    with Twin('HD', raw, context=ros_context, monitor='C2', bag=tmp_path / 'm') as twin:
+    with Twin('HD', raw, context=ros_context, monitor='SQ', bag=tmp_path / 'm') as twin:
         result = twin.run()
         t_res, res = twin.recorder.values('monitor/residual_xj')
         t_h, health = twin.recorder.values('monitor/health_p12')
@@ -214,7 +214,7 @@ def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_p
         assert not r.successful and 'simplified' in r.reason
     ref = simulate('HD', raw, ecu_period=1e-3)
     assert np.max(np.abs(result.signals['xj'] - ref['xj'])) == 0.0
-    mon = monitor_run(ref, 'C2')
+    mon = monitor_run(ref, 'SQ')
     on_grid = np.array(t_res) % 1_000_000 == 0
     np.testing.assert_array_equal(np.array(res)[on_grid], mon.residuals['xj'])
     # running sums of squares (node) against cumulative sums (arrays): equal up to rounding

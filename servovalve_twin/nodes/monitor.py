@@ -2,7 +2,7 @@
 (:class:`~servovalve_twin.prognostics.monitor.MonitorAlgorithm`) hosted like any algorithm.
 
 It runs its own copy of the actuator -- ECU law, servovalve, the chosen simplified valve model
-(default C2), jack -- with the *nominal* parameters, on the same Com, FR and PSR as the plant,
+(default SQ: :data:`~..prognostics.monitor.DEFAULT_MONITOR_MODEL`), jack -- with the *nominal* parameters, on the same Com, FR and PSR as the plant,
 and compares it with what the plant publishes.
 """
 
@@ -15,7 +15,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 
 from ..physics.params import PARAM_NAMES, EhaParams
 from ..physics.valves import MONITOR_MODEL_NAMES, get_monitor_model
-from ..prognostics.monitor import HealthConfig, MonitorAlgorithm
+from ..prognostics.monitor import DEFAULT_MONITOR_MODEL, HealthConfig, MonitorAlgorithm
 from .algorithm import AlgorithmNode, algorithm_topics
 from .common import spin_standalone
 
@@ -35,9 +35,9 @@ class Monitor(AlgorithmNode):
     (std_msgs/Float64, m, m/s, Pa: residual plant - model, and its moving RMS) every control
     period; ``diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period`` and
     at once when the level changes.
-    Parameters: ``monitor_model`` (string, a model the registry allows as monitor; default C2),
+    Parameters: ``monitor_model`` (string, a model the registry allows as monitor; default SQ),
     ``window`` and ``warn_*``/``error_*`` thresholds (double, SI; defaults from the model's
-    registry entry), ``diagnostics_period`` (s), ``control_period`` (s, read-only) and the
+    calibrated thresholds), ``diagnostics_period`` (s), ``control_period`` (s, read-only) and the
     nominal physical parameters of the whole actuator it models (ECU and plant).
     """
 
@@ -52,7 +52,7 @@ class Monitor(AlgorithmNode):
         super().__init__(MonitorAlgorithm(), name='monitor', **kwargs)
 
     def _declared_algorithm_params(self, alg) -> dict[str, Any]:
-        self.declare_parameter('monitor_model', 'C2', ParameterDescriptor(
+        self.declare_parameter('monitor_model', DEFAULT_MONITOR_MODEL, ParameterDescriptor(
             description='simplified valve model of the monitor',
             additional_constraints='one of: ' + ', '.join(MONITOR_MODEL_NAMES)))
         model = self.get_parameter('monitor_model').value

@@ -16,7 +16,10 @@ for a fraction or a value, ``span`` the distance from healthy to the alarm value
 
 - ``bias``: the median of ``g(estimate) - g(truth)`` over the units where the fault was named;
 - ``sigma``: the model-form spread, set so that ``g(estimate) - bias +- z*sqrt(se^2 + sigma^2)``
-  holds ``g(truth)`` in 90 % of those units at z = 1.645 (``se`` the fit's own standard error);
+  holds ``g(truth)`` in ``ceil(0.9*(n + 1))`` of those ``n`` units at z = 1.645 (``se`` the
+  fit's own standard error) -- the split-conformal rank, which makes the coverage of a new
+  unit from the same distribution at least 90 % however few the units (a plain 90 % of them
+  covered 85 % of new units: measured);
 
 and over the units whose right hypothesis was fitted, the distribution of the fit's RMS of
 normalised residuals (``rms``): its quantiles are the goodness-of-fit reference. The result is
@@ -46,10 +49,12 @@ NOISE = {'xj': 10e-6, 'dxj': 1e-3, 'p12': 50e3}
 LEVELS = (0.3, 0.6, 1.0)
 #: the z of a two-sided 90 % normal interval
 Z90 = 1.6449
-#: the scenarios of the calibration set (1 s each): the paper's, steps under load, a sine
-#: against an opposing load
+#: the scenarios of the calibration set: the paper's, steps under load, a sine against an
+#: opposing load (1 s each), and the designed built-in test (``bit``, 2 s: the recommended
+#: ground test, :mod:`.excitation`)
 CAL_SCENARIOS: dict[str, Any] = {
     'paper': 'paper',
+    'bit': 'bit',
     'steps': dict(name='cal_steps', duration=1.0,
                   com=[[0.0, 0.0], [0.05, 0.03], [0.35, -0.02], [0.65, 0.01]],
                   fr=[[0.0, 0.0], [0.2, 3000.0], [0.5, -4000.0], [0.8, 0.0]],
@@ -148,15 +153,18 @@ def fit_calibration(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         se = np.array([r['se'] for r in rows])
         bias = float(np.median(err))
 
-        def coverage(sigma: float) -> float:
-            return float(np.mean(np.abs(err - bias) <= Z90 * np.sqrt(se ** 2 + sigma ** 2)))
+        # the split-conformal rank: this many of the n units must be held
+        need = min(len(rows), math.ceil(0.9 * (len(rows) + 1)))
+
+        def held(sigma: float) -> int:
+            return int(np.sum(np.abs(err - bias) <= Z90 * np.sqrt(se ** 2 + sigma ** 2)))
 
         lo, hi = 0.0, max(1e-6, float(np.max(np.abs(err - bias))) / Z90 * 1.01)
-        if coverage(0.0) >= 0.9:
+        if held(0.0) >= need:
             hi = 0.0
         for _ in range(60):
             mid = 0.5 * (lo + hi)
-            lo, hi = (lo, mid) if coverage(mid) >= 0.9 else (mid, hi)
+            lo, hi = (lo, mid) if held(mid) >= need else (mid, hi)
         out['faults'][fault] = dict(bias=bias, sigma=hi, units=len(rows),
                                     named=len(rows) / sum(1 for r in records
                                                           if r['fault'] == fault))

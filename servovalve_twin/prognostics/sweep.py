@@ -33,7 +33,7 @@ from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, make_params
 from ..physics.simulate import simulate
 from ..progress import progress
-from .monitor import ERROR, WARN, HealthConfig, monitor_run
+from .monitor import DEFAULT_MONITOR_MODEL, ERROR, WARN, HealthConfig, monitor_run
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,7 +133,7 @@ def measured(signals: Mapping[str, np.ndarray], noise: Mapping[str, float],
     return out
 
 
-def make_cases(*, plant_model: str = 'HD', monitor_model: str = 'C2',
+def make_cases(*, plant_model: str = 'HD', monitor_model: str = DEFAULT_MONITOR_MODEL,
                scenario: Any = 'paper', faults: Mapping[str, Sequence[float]] | None = None,
                nominal_runs: int = 1, repeats: int = 1, draws: int = 0,
                ranges: Mapping[str, tuple[float, float]] | None = None,

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, Mapping
+from typing import Any, Callable
 
 import numpy as np
 
@@ -81,9 +81,6 @@ class ValveModel:
     iterative: bool = False     # counts iterations and non-converged calls (C4, HD)
     #: may serve as the monitor model (a fast simplified model; HD is the plant reference)
     monitor: bool = True
-    #: default health thresholds as the monitor model (``warn_xj``.. ``error_p12``, SI units)
-    monitor_thresholds: Mapping[str, float] | None = dataclasses.field(
-        default_factory=lambda: dict(_s.MONITOR_THRESHOLDS))
     #: params -> the kernel constants VC0.. this model reads (computed once, not per step)
     constants: Callable[[EhaParams], tuple[float, ...]] = _no_constants
     #: (params, xj) -> the valve state at rest
@@ -160,10 +157,10 @@ VALVE_MODELS: dict[str, ValveModel] = {m.name: dataclasses.replace(m, id=i) for 
                iterative=True, last_info=_s.c4_info),
     ValveModel('SQ', _sq.model_sq, 'beyond the paper (issue 6)',
                'explicit four-edge orifice law: sqrt load droop, P12 > PSR when over-run',
-               constants=_sq.sq_constants, monitor_thresholds=dict(_sq.MONITOR_THRESHOLDS)),
+               constants=_sq.sq_constants),
     ValveModel('HD', _hd.hd_solve, 'Fig. 23 reference',
                'four-edge valve: laps, clearance, orifice + laminar gap, port continuity',
-               has_ports=True, iterative=True, monitor=False, monitor_thresholds=None,
+               has_ports=True, iterative=True, monitor=False,
                rest_state=_hd.hd_initial_state, handover=_hd.hd_handover,
                last_info=_hd.hd_info),
 ))}

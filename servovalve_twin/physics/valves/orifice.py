@@ -108,9 +108,3 @@ def model_sq(xs, qj, psr, P, vs):
     # predicted point Q1 = QJ + CLk*P0 -- a fixed formula, no iteration
     p1 = _branches(a, b, qj + P.CLk * p0, psr, a2ps2, b2ps2, ab2ps2, inv_ab2)
     return sign * p0 * p0 / (2.0 * p0 - p1)
-
-
-#: SQ as the monitor model: it follows HD ten times closer than C2, so its thresholds are ten
-#: times tighter -- 2 (warn) and 3 (error) times its largest nominal indicator against HD.
-MONITOR_THRESHOLDS = dict(warn_xj=1.0e-3, error_xj=1.5e-3, warn_dxj=0.015, error_dxj=0.022,
-                          warn_p12=1.3e6, error_p12=2.0e6)

@@ -136,14 +136,6 @@ def naive_leakage_loop(xs, qj, P, n_steps, p12_0=0.0):
     return out
 
 
-#: Default thresholds of a simplified model serving as the monitor model beside an HD plant
-#: (moving RMS of the residuals, SI units): about 1.6 (warn) and 2.3 (error) times C2's largest
-#: nominal indicator against HD on the paper scenario (3.8 mm, 0.113 m/s, 5.2 MPa) -- the
-#: model's own mismatch -- so that a healthy actuator does not alarm.
-MONITOR_THRESHOLDS = dict(warn_xj=6.0e-3, error_xj=9.0e-3, warn_dxj=0.12, error_dxj=0.18,
-                          warn_p12=6.0e6, error_p12=9.0e6)
-
-
 def c4_info(vs):
     """Diagnostics of C4's last call: iterations of its short run, calls that hit the cap."""
     return dict(iterations=int(vs[V_ITER]), nonconverged_calls=int(vs[V_NONCONV]))
