@@ -195,11 +195,7 @@ def fit_trends(cycles: Sequence[float], severities: Sequence[float],
     n = np.asarray(cycles, dtype=float)
     s = np.asarray(severities, dtype=float)
     sig0 = _sigmas(s, np.asarray(sigmas, dtype=float), fault)
-    # the first residuals from the Theil-Sen line (the median of the pairwise slopes), which a
-    # misread flight cannot pull: least squares can, so far that its residual looks ordinary
-    i, j = np.triu_indices(len(n), 1)
-    slope = float(np.median((s[j] - s[i]) / (n[j] - n[i])))
-    fitted = np.median(s - slope * n) + slope * n
+    fitted = _robust_start(n, s)
     for _ in range(3):
         r = np.abs(s - fitted) / sig0
         z = r / max(1.0, 1.4826 * float(np.median(r)))
@@ -208,6 +204,23 @@ def fit_trends(cycles: Sequence[float], severities: Sequence[float],
         fits = _weigh(n, s, sig0 * inflate, fault)
         fitted = fits[0](n)
     return fits, max(1.0, fits[0].chi2 / max(len(n) - fits[0].k, 1))
+
+
+def _robust_start(n: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The first fit, from which outlying flights are judged: the Theil-Sen line (the median
+    of the pairwise slopes), which a misread flight cannot pull -- least squares can, so far
+    that its residual looks ordinary -- or, where it leaves less absolute residual, two levels
+    (medians) split at the best flight with at least two flights on each side: a step is no
+    outlier (four flights past a step, judged from a line through the eight before, were left
+    out as misread and the unit given no trend)."""
+    i, j = np.triu_indices(len(n), 1)
+    slope = float(np.median((s[j] - s[i]) / (n[j] - n[i])))
+    best = np.median(s - slope * n) + slope * n
+    for k in range(2, len(n) - 1):
+        levels = np.r_[np.full(k, np.median(s[:k])), np.full(len(n) - k, np.median(s[k:]))]
+        if np.sum(np.abs(s - levels)) < np.sum(np.abs(s - best)):
+            best = levels
+    return best
 
 
 def _weigh(n: np.ndarray, s: np.ndarray, sig: np.ndarray, fault: str) -> list[Trend]:
