@@ -27,7 +27,8 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import LEVELS, severity_at, unit_signals
+from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, LEVELS, severity_at,
+                                                     unit_signals)
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, HEALTHY, UNEXPLAINED, diagnose
 from servovalve_twin.prognostics.metrics import detection_rates, interval_coverage
 
@@ -61,7 +62,10 @@ def one(job):
                                 {'at': 0.0, 'fault': b, 'severity': severity_at(b, q)}])
         sig, truth, _ = unit_signals(None, 0.0, raw, seed, spread=spread)
     # M x1.5 and CJ x1.5 are flown with the true design and diagnosed against the nominal one
-    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=free)
+    # a calibration scenario's flight gets its own calibration, as diagnose_bag finds it
+    # from a bag's recorded inputs (calibration_scenario)
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=free,
+                 scenario=scen if scen in CAL_SCENARIOS else None)
     best = d.best
     named = d.verdict or best.fault
     return dict(kind=kind, fault=fault if kind == 'inside' else kind, q=q, scen=scen,

@@ -45,8 +45,9 @@ def record(d, fault, truth):
 def one(job):
     fault, q, scen, seed = job
     sig, truth, _ = unit_signals(fault, q, CAL_SCENARIOS[scen], seed, spread=SPREAD)
-    return {free: record(diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=free,
-                                  model_form=False), fault, truth) for free in FREE_SETS}
+    return {free: dict(record(diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ',
+                                       free=free, model_form=False), fault, truth),
+                       scenario=scen) for free in FREE_SETS}
 
 
 def main() -> None:
@@ -67,7 +68,9 @@ def main() -> None:
         if kept['jobs'] != [list(j) for j in jobs]:
             sys.exit(f'{args.records} holds another calibration set (units, seed or scenarios '
                      'differ); run without --refit')
-        results = [{tuple(json.loads(k)): v for k, v in r.items()} for r in kept['results']]
+        # (records kept before the scenario was recorded in them: it is the job's)
+        results = [{tuple(json.loads(k)): dict(v, scenario=job[2]) for k, v in r.items()}
+                   for job, r in zip(jobs, kept['results'])]
     else:
         unit_signals(None, 0.0, 'paper', 0)             # compile in the parent, not per worker
         with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
@@ -92,6 +95,10 @@ def main() -> None:
         for f, c in out[key]['faults'].items():
             print(f'  {f:24s} bias {c["bias"]:+.4f}  sigma {c["sigma"]:.4f}  named '
                   f'{c["named"]:.0%} of {c["units"]}')
+        for scen, fits in out[key]['by_scenario'].items():
+            for f, c in fits.items():
+                print(f'  on {scen:8s} {f:24s} bias {c["bias"]:+.4f} slope {c["slope"]:+.3f} '
+                      f'sigma {c["sigma"]:.4f}')
         print('  rms quantiles', {k: round(v, 3) for k, v in out[key]['rms_quantiles'].items()})
 
 

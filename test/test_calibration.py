@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from servovalve_twin.physics.faults import FAULTS
+from servovalve_twin.prognostics import calibration
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (LEVELS, calibration_for, fit_calibration,
                                                      from_g, gof_p_value, severity_at, to_g,
@@ -106,3 +107,48 @@ def test_the_model_form_term_makes_the_interval_hold_the_truth():
     print(held)
     assert held[True] >= 3 and held[False] <= 1
 
+
+
+def test_a_linear_bias_per_scenario_is_recovered():
+    """Errors in g that grow with the estimate, 0.1 + 0.2 (g - g0), on one scenario, and a
+    constant -0.05 on another: each scenario's own entry has its line, the pooled entry a
+    constant, and a flight of neither falls back to the pooled one."""
+    rng = np.random.default_rng(4)
+    rec = []
+    for scen in ('bit', 'paper'):
+        for _ in range(200):
+            truth = float(np.exp(rng.uniform(0.5, 3.0)))
+            g = math.log(truth)
+            e = (0.1 + 0.2 * (g - 1.75)) if scen == 'bit' else -0.05
+            e += rng.normal(0.0, 0.01)
+            rec.append(dict(fault='leakage_growth', truth=truth, named='leakage_growth',
+                            estimate=truth * math.exp(e), se=0.0, rms=1.0, scenario=scen))
+    cal = fit_calibration(rec)
+    own = cal['by_scenario']['bit']['leakage_growth']
+    assert own['slope'] == pytest.approx(0.2 / 1.2, abs=0.01)      # per g(estimate)
+    g_est = 3.0 + 0.1 + 0.2 * (3.0 - 1.75)
+    assert calibration.bias_at(own, g_est) == pytest.approx(g_est - 3.0, abs=0.01)
+    assert cal['by_scenario']['paper']['leakage_growth']['slope'] == pytest.approx(0, abs=0.01)
+    assert calibration.fault_calibration(cal, 'leakage_growth', 'paper')['bias'] == \
+        pytest.approx(-0.05, abs=0.005)
+    assert calibration.fault_calibration(cal, 'leakage_growth', 'eval') is cal['faults'][
+        'leakage_growth']
+
+
+def test_a_bag_is_matched_to_its_calibration_scenario_by_its_inputs():
+    from servovalve_twin.apps.diagnose import calibration_scenario
+    from servovalve_twin.bag.provenance import Provenance
+    from servovalve_twin.config import load_scenario
+    from servovalve_twin.physics.params import DEFAULTS
+    from servovalve_twin.physics.scenario import scenario_from_dict
+    bit = load_scenario('bit')
+    assert calibration_scenario(Provenance.build('HD', bit, DEFAULTS, 1e-3)) == 'bit'
+    # renamed, with a fault scheduled: the same flight
+    raw = dict(bit.to_dict(), name='my_test', faults=[dict(at=0.0, fault='null_bias',
+                                                           severity=-1e-3)])
+    assert calibration_scenario(Provenance.build('HD', scenario_from_dict(raw), DEFAULTS,
+                                                 1e-3)) == 'bit'
+    # another flight: none
+    raw = dict(bit.to_dict(), fr=[[0.0, 0.0]])
+    assert calibration_scenario(Provenance.build('HD', scenario_from_dict(raw), DEFAULTS,
+                                                 1e-3)) is None

@@ -34,6 +34,24 @@ def parse_faults(text: str | None) -> tuple[str, ...]:
     return tuple(n.strip() for n in text.split(',') if n.strip())
 
 
+def calibration_scenario(provenance) -> str | None:
+    """The calibration scenario (:data:`..prognostics.calibration.CAL_SCENARIOS`) a bag
+    flew, if its recorded inputs are that scenario's, whatever it was called; else None."""
+    from ..config import load_scenario
+    from ..prognostics.calibration import CAL_SCENARIOS
+    if not provenance or provenance.scenario is None:
+        return None
+    flown = provenance.scenario_object()
+
+    def inputs(scn):
+        d = scn.to_dict()
+        return [d.get(k) for k in ('duration', 'com', 'fr', 'psr')]
+    for name, spec in CAL_SCENARIOS.items():
+        if inputs(load_scenario(spec)) == inputs(flown):
+            return name
+    return None
+
+
 def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
                  window: tuple[float, float] | None = None, free: Sequence[str] = (),
                  bootstrap: int = 0, pairs: bool = False,
@@ -51,7 +69,8 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     period = control_period or run.control_period or 1e-3
     d = diagnose(run.signals, design, control_period=period, model=model, faults=faults,
                  window=window, free=free, bootstrap=bootstrap, pairs=pairs,
-                 model_form=run.valve_model != model, onset=onset)
+                 model_form=run.valve_model != model, onset=onset,
+                 scenario=calibration_scenario(run.provenance))
     if not run.provenance:
         assumed = ('the parameters given with --param and the defaults for the rest'
                    if nominal else 'the design parameters (the defaults)')
@@ -105,7 +124,7 @@ def flight_entry(d: Diagnosis, fault: str, cycles: float) -> dict[str, Any]:
     entry = dict(cycles=cycles, severity=severity, interval=list(interval))
     if d.calibration is not None:
         severity, _, model_sigma = model_form_estimate(d.calibration, fault, severity,
-                                                       tuple(interval))
+                                                       tuple(interval), d.calibration_scenario)
         half = (interval[1] - interval[0]) / 2
         entry.update(severity=severity, interval=[severity - half, severity + half],
                      model_sigma=model_sigma)

@@ -183,8 +183,10 @@ class Diagnosis:
     #: the verdict interval's confidence and what it counts
     confidence: float = 0.95
     interval_counts: str = 'measurement noise'
-    #: the model-form calibration applied (None: none, the intervals count the noise only)
+    #: the model-form calibration applied (None: none, the intervals count the noise only),
+    #: and the calibration scenario whose own entries it used (None: the pooled ones)
     calibration: dict[str, Any] | None = None
+    calibration_scenario: str | None = None
     #: when the verdict's fault began ({'t', 'interval'} [s]), None: from the start (or not
     #: asked)
     onset: dict[str, Any] | None = None
@@ -368,7 +370,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
              window: tuple[float, float] | None = None, free: Sequence[str] = (),
              bootstrap: int = 0, seed: int = 0, pairs: bool = False,
              start: float | None = None, model_form: bool = True,
-             onset: bool = False) -> Diagnosis:
+             onset: bool = False, scenario: str | None = None) -> Diagnosis:
     """Fit every hypothesis and rank them (see the module docstring).
 
     :param signals: the run's 1 ms rows (``read_bag(...).signals``, ``simulate(...).signals``)
@@ -384,6 +386,9 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         (:mod:`.calibration`); False when the run is the fitted model's own (the model is
         exact) or to calibrate
     :param onset: also fit when a single-fault verdict began (see :func:`_fit_onset`)
+    :param scenario: the calibration scenario the run flew (``'bit'``, ``'paper'``), whose own
+        model-form calibration then applies (:func:`.calibration.fault_calibration`); a bag's
+        is found by :func:`..apps.diagnose.calibration_scenario`
     """
     for f in faults:
         if f not in FAULTS:
@@ -469,7 +474,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                           + ' (the fit does not change beyond it: only a flight that excites '
                           'it more can pin it)')
     if model_form:
-        _apply_model_form(d, free)
+        _apply_model_form(d, free, scenario)
     return d
 
 
@@ -544,7 +549,8 @@ def _second_fault(problem: _Problem, best: Candidate, singles: Mapping[str, np.n
     return found
 
 
-def _apply_model_form(d: Diagnosis, free: Sequence[str]) -> None:
+def _apply_model_form(d: Diagnosis, free: Sequence[str], scenario: str | None = None
+                      ) -> None:
     """The calibration's bias correction and model-form spread on the verdict, and the
     goodness-of-fit test (see :mod:`.calibration`)."""
     from .calibration import calibration_for, gof_p_value
@@ -555,6 +561,7 @@ def _apply_model_form(d: Diagnosis, free: Sequence[str]) -> None:
                           'measurement noise only')
         return
     d.calibration = cal
+    d.calibration_scenario = scenario if scenario in (cal.get('by_scenario') or {}) else None
     d.p_value = gof_p_value(cal, d.fit_rms)
     d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(cal['rms'], REFERENCE_QUANTILE))
     if d.fit_rms > d.fit_limit:
@@ -570,30 +577,33 @@ def _apply_model_form(d: Diagnosis, free: Sequence[str]) -> None:
     best.raw = (best.severity, best.interval)
     sevs, ivs = [], []
     for f, s, iv in zip(best.faults, best.severities, best.intervals):
-        s, iv, _ = model_form_estimate(cal, f, s, iv)
+        s, iv, _ = model_form_estimate(cal, f, s, iv, scenario)
         sevs.append(s)
         ivs.append(iv)
     best.severity = sevs[0] if len(sevs) == 1 else sevs
     best.interval = ivs[0] if len(ivs) == 1 else ivs
     d.confidence = 0.9
-    d.interval_counts = 'measurement noise and the model-form error calibrated against HD'
+    d.interval_counts = 'measurement noise and the model-form error calibrated against HD' + (
+        f' on this flight ({d.calibration_scenario})' if d.calibration_scenario else '')
 
 
 def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
-                        interval95: tuple[float, float]
+                        interval95: tuple[float, float], scenario: str | None = None
                         ) -> tuple[float, tuple[float, float], float]:
     """A fault's severity less the calibrated bias, its 90 % interval with the model-form
     spread (the fit's 95 % interval read as a standard error), and that spread as a relative
     standard deviation of the distance from healthy (what :func:`..prognosis.prognose` takes
-    as ``model_sigma``). Unchanged, with a spread of 0, for a fault the calibration lacks."""
-    from .calibration import Z90, from_g, to_g
-    c = cal['faults'].get(fault)
+    as ``model_sigma``). Unchanged, with a spread of 0, for a fault the calibration lacks.
+    ``scenario``: the calibration scenario the flight is (its own entry, where there is one)."""
+    from .calibration import Z90, bias_at, fault_calibration, from_g, to_g
+    c = fault_calibration(cal, fault, scenario)
     spec = FAULTS[fault]
     lo, hi = interval95
     if c is None:
         return severity, (lo, hi), 0.0
     se = (to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96)
-    g = to_g(fault, severity) - c['bias']
+    g = to_g(fault, severity)
+    g = g - bias_at(c, g)
     half = Z90 * math.hypot(se, c['sigma'])
     est = min(max(from_g(fault, g), spec.lo), spec.hi)
     iv = (max(from_g(fault, g - half), spec.lo), min(from_g(fault, g + half), spec.hi))
