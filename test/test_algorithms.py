@@ -63,7 +63,7 @@ def live(tmp_path_factory):
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     bag = tmp_path_factory.mktemp('alg') / 'leaking'
     try:
-        with Twin('HD', LEAKING, context=ctx, bag=bag, monitor='C2',
+        with Twin('HD', LEAKING, context=ctx, bag=bag, monitor='SQ',
                   algorithms=[DETECTOR, (Echo, {'gain': 2.0})]) as twin:
             twin.run()
             values = {t: twin.recorder.values(t) for t in twin.recorder.float_topics
