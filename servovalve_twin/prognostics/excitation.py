@@ -251,8 +251,8 @@ MIN_BIT_DURATION = 0.6
 
 @dataclasses.dataclass(frozen=True)
 class RigLimits:
-    """What the test rig and the actuator allow: stroke |Com| [m], load |FR| [N], command rate
-    [m/s] (None: steps)."""
+    """What the test rig and the actuator allow: stroke ``|Com|`` [m], load ``|FR|`` [N],
+    command rate [m/s] (None: steps)."""
 
     stroke: float = 0.04
     load: float = 6000.0
