@@ -222,3 +222,22 @@ def test_a_huge_or_deep_metadata_file_is_refused(tmp_path, capsys):
         fh.truncate(17 * 2 ** 20)
     assert main(['compare', '@paper_HD', str(d)]) == 2
     assert 'MiB' in capsys.readouterr().err
+
+
+def test_a_sqlite3_bag_is_read_without_writing_beside_it(layouts, tmp_path):
+    """A rosbag2 sqlite3 bag in WAL journal mode, in a directory whose name needs quoting in
+    a URI: read by the one reader, nothing appears beside it (mode=ro alone left -shm and
+    -wal files in the user's bag), and what it holds is read."""
+    import shutil
+    import sqlite3
+    bags, msgs, xj = layouts
+    bag = tmp_path / 'my bag #1?'
+    shutil.copytree(bags['sqlite3'][0], bag)
+    for f in bag.glob('*.db3'):
+        con = sqlite3.connect(f)
+        assert con.execute('PRAGMA journal_mode=WAL').fetchone()[0] == 'wal'
+        con.close()
+    before = sorted(p.name for p in bag.iterdir())
+    run = read_bag(bag)
+    np.testing.assert_array_equal(run.signals['xj'], xj)
+    assert sorted(p.name for p in bag.iterdir()) == before

@@ -246,8 +246,14 @@ class Sqlite3Storage(Storage):
     name, suffix, magic = 'sqlite3', '.db3', b'SQLite format 3'
 
     def messages(self, f, keep, start_ns, end_ns, topics_out=None):
+        # read-only and immutable: sqlite then writes no -shm or -wal beside the user's bag
+        # (a WAL-mode bag opened with mode=ro alone left both); a bag with a -wal beside it
+        # was not closed cleanly and its last writes are in that file, which only a plain
+        # read-only open reads
+        live = Path(str(f) + '-wal').exists()
+        uri = Path(f).resolve().as_uri() + ('?mode=ro' if live else '?mode=ro&immutable=1')
         try:
-            con = sqlite3.connect(f'file:{f}?mode=ro', uri=True)
+            con = sqlite3.connect(uri, uri=True)
         except sqlite3.Error as exc:
             raise BagError(f'cannot open {str(f)!r} as sqlite3: {exc}') from None
         try:
