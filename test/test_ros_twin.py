@@ -304,3 +304,17 @@ def test_the_graph_still_sees_the_topics_the_nodes_hand_over_in_process(ros_cont
     run = read_bag(tmp_path / 'b')
     for col in ref.columns:
         np.testing.assert_array_equal(run.signals[col], ref[col], err_msg=col)
+
+
+def test_a_fault_simulate_accepts_is_accepted_by_the_twin(ros_context):
+    """A dynamic friction of 15 x (the catalog's alarm value) raises FSJ with FDJ: two events
+    at one instant. Applied one parameter at a time the plant refused FDJ > FSJ and cut the
+    run at the onset; applied as one state, the twin equals simulate bit for bit."""
+    raw = {'duration': 0.3, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.05, 3000.0]],
+           'faults': [{'at': 0.1, 'fault': 'dynamic_friction', 'severity': 15.0}]}
+    with Twin('C2', raw, context=ros_context) as twin:
+        result = twin.run()
+        assert twin.plant.plant.params.FDJ == twin.plant.plant.params.FSJ == 3000.0
+    ref = simulate('C2', raw, ecu_period=1e-3)
+    assert len(result.signals['t']) == 301
+    np.testing.assert_array_equal(result.signals['xj'], ref['xj'])

@@ -335,12 +335,16 @@ class Twin:
             mine = [e for e in events if e.param in node.physical]
             if not mine:
                 continue
-            results = node.set_parameters([_ros_param_value(e.param, e.value) for e in mine])
-            for e, result in zip(mine, results):
-                if not result.successful:
-                    raise TwinError(f'fault {e.label} at {t_ns * 1e-9:.3f} s refused by '
-                                    f'{node.get_name()}: {result.reason}')
-                node.get_logger().info(f'fault injected at {t_ns * 1e-9:.3f} s: {e.label}')
+            # the tick's events at once, validated as one state (as simulate applies them): a
+            # dynamic friction beyond the static one raises FSJ with FDJ in one event pair,
+            # and FDJ alone would be refused (FDJ > FSJ)
+            result = node.set_parameters_atomically(
+                [_ros_param_value(e.param, e.value) for e in mine])
+            labels = ', '.join(dict.fromkeys(e.label for e in mine))
+            if not result.successful:
+                raise TwinError(f'fault {labels} at {t_ns * 1e-9:.3f} s refused by '
+                                f'{node.get_name()}: {result.reason}')
+            node.get_logger().info(f'fault injected at {t_ns * 1e-9:.3f} s: {labels}')
         unread = [e.label for e in events
                   if not any(e.param in n.physical for n in self.actuator)]
         if unread:
