@@ -270,8 +270,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.bag is None or args.json is None:
         raise TwinError('diagnose needs BAG and --json FILE (or --limits SCENARIO for the '
                         'detection limits of an excitation)')
-    if args.bootstrap < 0:
-        raise TwinError(f'--bootstrap must be >= 0, got {args.bootstrap}')
+    if args.bootstrap < 0 or 0 < args.bootstrap < MIN_BOOTSTRAP:
+        # the 2.5 and 97.5 % percentiles of fewer refits are a refit or two, not an interval
+        # (one refit gave an interval that excluded its own estimate)
+        raise TwinError(f'--bootstrap {args.bootstrap}: allowed 0 (the Jacobian interval) or '
+                        f'at least {MIN_BOOTSTRAP} refits')
     t = time.perf_counter()
     d = diagnose_bag(args.bag, model=args.model, faults=parse_faults(args.faults),
                      window=parse_window(args.window), free=free, bootstrap=args.bootstrap,
@@ -300,6 +303,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         extra = ''.join(f' {k}x{v:.3f}' for k, v in c.free.items())
         print(f'  {c.fault:24s}{sev:>10s}  score {c.score:10.1f}{extra}')
     return 0
+
+
+#: the fewest block-bootstrap refits whose percentiles make an interval
+MIN_BOOTSTRAP = 20
 
 
 def _print_limits(args: argparse.Namespace, free: tuple[str, ...],
@@ -793,7 +800,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--free', metavar='M,CJ,...', help='nuisance parameters estimated '
                    'alongside (factors on the recorded values, in [0.5, 2])')
     p.add_argument('--bootstrap', type=int, default=0, metavar='N',
-                   help='the interval from N block-bootstrap refits (default: the Jacobian)')
+                   help='the interval from N >= 20 block-bootstrap refits (default 0: the '
+                        'Jacobian)')
     p.add_argument('--pairs', action='store_true',
                    help="also every two faults at once (named 'a+b'; severity and interval "
                         'then list one entry per fault)')

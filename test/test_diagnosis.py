@@ -346,6 +346,8 @@ def test_bad_diagnosis_input_is_one_line_and_exit_2(flights, tmp_path, capsys):
         (['diagnose', str(bags[0]), '--json', out, '--free', 'MASS'], 'unknown parameter'),
         (['diagnose', str(bags[0]), '--json', out, '--faults', 'null_bias', '--pairs'],
          'at least two faults'),
+        (['diagnose', str(bags[0]), '--json', out, '--bootstrap', '1'], 'at least 20 refits'),
+        (['diagnose', str(bags[0]), '--json', out, '--bootstrap', '-2'], 'allowed 0'),
         (['prognose', str(bags[0]), str(bags[1]), '--threshold', 'leakage_growth',
           '--json', out], 'at least three flights'),
         (['prognose', *map(str, bags), '--threshold', 'leakage_growth', '--cycles', '0,1',
