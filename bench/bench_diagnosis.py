@@ -44,20 +44,20 @@ SCENARIOS = {
 def one(job):
     kind, fault, q, scen, seed, spread, free = job
     t0 = time.perf_counter()
+    flight = SCENARIOS.get(scen, scen)            # a bench flight, or a built-in / file
     if kind == 'inside':
-        sig, truth, _ = unit_signals(None if fault == HEALTHY else fault, q, SCENARIOS.get(scen, scen),
-                                     seed, spread=spread)
+        sig, truth, _ = unit_signals(None if fault == HEALTHY else fault, q, flight, seed,
+                                     spread=spread)
     elif kind == 'clearance':
-        sig, truth, _ = unit_signals("clearance_growth", q, SCENARIOS.get(scen, scen), seed, spread=spread)
+        sig, truth, _ = unit_signals('clearance_growth', q, flight, seed, spread=spread)
     elif kind in ('M', 'CJ'):
         # a unit whose mass or viscous friction is 1.5 x the design: no catalog fault
-        sig, truth, _ = unit_signals(None, 0.0, SCENARIOS.get(scen, scen), seed, spread=0.0,
+        sig, truth, _ = unit_signals(None, 0.0, flight, seed, spread=0.0,
                                      design=DEFAULTS.replace(**{kind: 1.5 * DEFAULTS.value(kind)}))
     else:                                          # two faults at once
         from servovalve_twin.config import load_scenario
         a, b = fault
-        sc = SCENARIOS.get(scen, scen)
-        raw = dict(sc) if isinstance(sc, dict) else load_scenario(sc).to_dict()
+        raw = dict(flight) if isinstance(flight, dict) else load_scenario(flight).to_dict()
         raw = dict(raw, faults=[{'at': 0.0, 'fault': a, 'severity': severity_at(a, q)},
                                 {'at': 0.0, 'fault': b, 'severity': severity_at(b, q)}])
         sig, truth, _ = unit_signals(None, 0.0, raw, seed, spread=spread)

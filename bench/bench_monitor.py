@@ -17,7 +17,7 @@ from servovalve_twin.config import builtin_scenarios, load_scenario
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import NOISE, VARY
-from servovalve_twin.prognostics.monitor import ERROR, WARN, _chirp, monitor_run, random_steps
+from servovalve_twin.prognostics.monitor import ERROR, WARN, chirp, monitor_run, random_steps
 from servovalve_twin.prognostics.sweep import draw_nuisance, measured
 from servovalve_twin.runs import simulate
 
@@ -25,7 +25,7 @@ from servovalve_twin.runs import simulate
 def flights(seed: int) -> dict:
     out = {n: n for n in builtin_scenarios()}
     for f0, f1, amp, load in ((0.2, 5.0, 0.03, -3000.0), (2.0, 30.0, 0.005, 6000.0)):
-        c = _chirp(f0, f1, amp, 2.0, load)
+        c = chirp(f0, f1, amp, 2.0, load)
         out[c['name']] = c
     for k in range(4):
         out[f'steps_{seed + k}'] = random_steps(seed + k)
@@ -72,7 +72,8 @@ def main() -> None:
             mon = monitor_run(run, m, nominal=DEFAULTS)
             detect[m][f'{f} {sev:g}'] = mon.first_alarm(ERROR)
     print(f'machine: {machine()}; {len(fl)} flights ({", ".join(fl)}) x {args.units} healthy HD '
-          f'units, nuisance x1.5 the documented spread, noise 0.5-2 x the documented level; seed {args.seed}; '
+          f'units, nuisance x1.5 the documented spread, noise 0.5-2 x the documented level; '
+          f'seed {args.seed}; '
           f'{time.perf_counter() - t0:.0f} s')
     print('\n| monitor model | healthy runs | ERROR (false alarms) | WARN | faults at their alarm '
           'severity detected (ERROR), paper | 3 x leakage, paper |')

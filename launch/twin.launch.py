@@ -2,8 +2,9 @@
 
     ros2 launch servovalve_twin twin.launch.py valve_model:=HD scenario:=paper rate:=1.0
 
-It also starts the monitor node (``monitor_model:=SQ``, the default) beside the plant. The ECU and the plant
-are essential: when either exits (a bad parameter at start-up, say) the whole launch ends.
+It also starts the monitor node (``monitor_model:=SQ``, the default) beside the plant. The ECU
+and the plant are essential: when either exits (a bad parameter at start-up, say) the whole
+launch ends.
 
 A ``clock`` process publishes ``/clock`` at ``rate`` simulated seconds per wall second; every
 node runs with ``use_sim_time`` and its own timer at ``control_period``. Across processes the

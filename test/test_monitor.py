@@ -112,12 +112,12 @@ def test_no_false_alarm_on_unseen_flights_and_a_3x_leak_is_seen():
     default monitor stays below ERROR; a 3 x leakage on the paper's flight reaches it."""
     from servovalve_twin.config import load_scenario
     from servovalve_twin.prognostics.calibration import NOISE, VARY
-    from servovalve_twin.prognostics.monitor import (ERROR, _chirp, monitor_run,
+    from servovalve_twin.prognostics.monitor import (ERROR, chirp, monitor_run,
                                                      random_steps)
     from servovalve_twin.prognostics.sweep import draw_nuisance, measured
     rng = np.random.default_rng(77)
     noise = {k: 2 * v for k, v in NOISE.items()}
-    for flight in (_chirp(0.3, 8.0, 0.025, 2.0, -4000.0), random_steps(77), random_steps(78)):
+    for flight in (chirp(0.3, 8.0, 0.025, 2.0, -4000.0), random_steps(77), random_steps(78)):
         unit = DEFAULTS.replace(**draw_nuisance(rng, {k: 1.5 * v for k, v in VARY.items()},
                                                 DEFAULTS))
         run = simulate('HD', flight, params=unit)

@@ -4,7 +4,8 @@ A fleet of healthy and leaking actuators (HD plants whose mass, viscous and dyna
 differ by up to +-10 %, +-20 %, +-20 % from nominal: the nuisance a detector must tolerate) flies
 the paper's scenario; leakage grows from 0.1 s (CLk x severity). Two monitors watch each one --
 the paper's best model, C2, and SQ (the default) -- with their calibrated thresholds (set for
-a false-alarm rate of 1e-3 per flight over many flights, not tuned on this one). Prints the detection table
+a false-alarm rate of 1e-3 per flight over many flights, not tuned on this one). Prints the
+detection table
 and writes docs/figures/leakage_detection.png.
 
     .venv/bin/python docs/examples/leakage_detection.py [--repeats 8] [--nominal 20]

@@ -2,8 +2,9 @@
 (:class:`~servovalve_twin.prognostics.monitor.MonitorAlgorithm`) hosted like any algorithm.
 
 It runs its own copy of the actuator -- ECU law, servovalve, the chosen simplified valve model
-(default SQ: :data:`~..prognostics.monitor.DEFAULT_MONITOR_MODEL`), jack -- with the *nominal* parameters, on the same Com, FR and PSR as the plant,
-and compares it with what the plant publishes.
+(default SQ: :data:`~..prognostics.monitor.DEFAULT_MONITOR_MODEL`), jack -- with the
+*nominal* parameters, on the same Com, FR and PSR as the plant, and compares it with what the
+plant publishes.
 """
 
 from __future__ import annotations

@@ -26,8 +26,8 @@ calibration coordinate (geometric for a multiplier: 1.58 x for leakage, whose al
 is not reported over healthy: that small a fit is the model's mismatch and the nuisance (24
 healthy HD units, nuisance at 1.5 x the documented spread, M and CJ free, three scenarios: at
 most 0.15 of the way for every fault whose likelihood is not flat). The detection limits this
-sets, with those of the excitation, are :mod:`.excitation`'s. A pair is reported only when both its faults are that
-large, and when its score is :data:`PAIR_EVIDENCE` (10) below each of its two single faults'
+sets, with those of the excitation, are :mod:`.excitation`'s. A pair is reported only when
+both its faults are that large, and when its score is :data:`PAIR_EVIDENCE` (10) below each of its two single faults'
 -- a second fault absorbs some of SQ's mismatch against HD and wins by 1-7 points on units
 with one fault (measured), where units with two faults give 57-136. ``candidates`` keep every
 fit, in score order after the verdict.

@@ -9,7 +9,7 @@ worst of the three (0 OK, 1 WARN, 2 ERROR), as in ``diagnostic_msgs/DiagnosticSt
 
 Thresholds are set for a stated false-alarm rate, not by hand (:func:`calibrate_thresholds`):
 healthy HD actuators, their nuisance (M, CJ, FDJ) drawn within 1.5 x the documented spread and
-measured with the documented sensor noise, fly a set of flights (:data:`MONITOR_CAL_FLIGHTS`:
+measured with the documented sensor noise, fly a set of flights (:func:`monitor_cal_flights`:
 every built-in scenario, chirps, seeded random steps under load); each run's peak indicator
 per residual is collected, a Gumbel law (the law of maxima) is fitted to them by moments, and
 each threshold is its quantile at the per-flight false-alarm rate shared among the three
@@ -147,8 +147,8 @@ def monitor_run(run: RunResult, model: str = DEFAULT_MONITOR_MODEL,
     return assess(run['t'], residuals, config or HealthConfig.for_model(model))
 
 
-def _chirp(f0: float, f1: float, amplitude: float, duration: float, load: float
-           ) -> dict[str, Any]:
+def chirp(f0: float, f1: float, amplitude: float, duration: float, load: float
+          ) -> dict[str, Any]:
     """A linear chirp f0 -> f1 [Hz] of Com as a ramp profile sampled every 2 ms."""
     t = np.arange(0.0, duration + 1e-9, 2e-3)
     phase = 2 * math.pi * (f0 * t + (f1 - f0) * t * t / (2 * duration))
@@ -176,7 +176,7 @@ def monitor_cal_flights() -> dict[str, Any]:
     from ..config import builtin_scenarios
     flights: dict[str, Any] = {n: n for n in builtin_scenarios()}
     for f0, f1, amp, load in ((0.5, 10.0, 0.02, 0.0), (1.0, 20.0, 0.01, 5000.0)):
-        c = _chirp(f0, f1, amp, 2.0, load)
+        c = chirp(f0, f1, amp, 2.0, load)
         flights[c['name']] = c
     for seed in (1, 2, 3):
         flights[f'steps_{seed}'] = random_steps(seed)
