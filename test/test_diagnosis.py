@@ -1,4 +1,4 @@
-"""Diagnosis and prognosis (issue 11): faults identified and sized against what was injected,
+"""Diagnosis and prognosis: faults identified and sized against what was injected,
 trends and RUL against hand computations, the CLI's JSON and its refusals."""
 
 import json

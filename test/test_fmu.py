@@ -1,4 +1,4 @@
-"""servovalve-twin fmu (issue 11): the FMU, run by FMPy, gives simulate's outputs; parameters
+"""servovalve-twin fmu: the FMU, run by FMPy, gives simulate's outputs; parameters
 set through the FMU reach the physics; bad input is one line and exit 2, nothing written."""
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""servovalve_twin.progpy (issue 11): the EHA as a progpy PrognosticsModel -- bit for bit the
+"""servovalve_twin.progpy: the EHA as a progpy PrognosticsModel -- bit for bit the
 twin's physics when healthy, a particle filter that tracks a growing leak, a Monte-Carlo
 time of event against its closed form."""
 

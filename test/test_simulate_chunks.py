@@ -1,4 +1,4 @@
-"""What the speed work (issue 13) must not change, and what makes it fast must hold: simulate()
+"""What the speed work must not change, and what makes it fast must hold: simulate()
 runs chunk by chunk with the same result as one pass, and its compiled loop is loaded from
 numba's disk cache by a second process instead of being compiled again."""
 

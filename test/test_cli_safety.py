@@ -1,4 +1,4 @@
-"""A first hour without surprises (part of issue 12): the reference bag is safe, nothing is
+"""A first hour without surprises: the reference bag is safe, nothing is
 deleted that is not the bag's own, a refused start leaves nothing, corruption is detected."""
 
 import random

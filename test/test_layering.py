@@ -1,4 +1,4 @@
-"""The house in order (issue 9): one owner per datum in the ROS graph, one builder of the 1 ms
+"""The house in order: one owner per datum in the ROS graph, one builder of the 1 ms
 table, data flowing one way between the folders -- each test names the bug it would catch."""
 
 import ast
@@ -38,7 +38,7 @@ GROUP_FAULTS = [
                          ids=[f'{g}-{p}' for g, _, p, _ in GROUP_FAULTS])
 def test_scheduled_fault_on_every_parameter_group_twin_equals_simulate(ros_context, group, model,
                                                                        param, value):
-    """Bug 1 of issue 9: the twin sent every fault event to the plant, so a fault on an ECU
+    """A bug of the past: the twin sent every fault event to the plant, so a fault on an ECU
     parameter (GAP, CorM) changed simulate() but not the ROS run. Now each event goes to the
     nodes that read its parameter: the twin equals simulate bit for bit, and the fault shows."""
     scenario = dict(HALF, faults=[{'at': 0.1, 'param': param, 'value': value}])
@@ -86,7 +86,7 @@ def test_a_fault_never_reaches_the_monitor(ros_context):
 
 
 def test_read_bag_after_a_mid_run_switch_keeps_the_whole_run(ros_context, tmp_path):
-    """Bug 2 of issue 9: after a C2 -> HD switch at 0.1 s the reader's table started at
+    """A bug of the past: after a C2 -> HD switch at 0.1 s the reader's table started at
     0.101 s (P1, P2 exist only from the switch and cut every row before it), while the twin's
     started at 0. One builder now serves both: the same rows, P1/P2 NaN before the switch."""
     short = {'duration': 0.2, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.1, 5000.0]]}
