@@ -411,6 +411,18 @@ def test_a_fault_that_starts_mid_flight_is_located(fault, q, at):
     assert d.to_json()['onset']['t'] == d.onset['t']
 
 
+@pytest.mark.slow
+def test_an_onset_of_a_fault_too_small_to_report_is_no_verdict():
+    """A static friction of 6 x from 0.6 s on the paper's flight (below its limit there): the
+    best change point is a dynamic friction of 1.5 x from a wrong instant, below the verdict
+    floor -- it must not become a confident name, as it did."""
+    sig, _, _ = calibration.unit_signals('static_friction', 0.6, 'paper', 16666703, spread=1.5,
+                                         onset=0.6)
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
+                 scenario='paper')
+    assert d.onset is None and (d.verdict or d.best.fault) in ('healthy', UNEXPLAINED)
+
+
 def test_no_onset_is_reported_for_a_fault_present_from_the_start():
     sig, truth, _ = calibration.unit_signals('leakage_growth', 1.0, 'paper', 32, noise_gain=1.0)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('M', 'CJ'),

@@ -654,7 +654,8 @@ def _fit_onset(problem: _Problem, candidates: list[Candidate], n: int, n_eff: fl
                ) -> dict[str, Any] | None:
     """A change point: each single-fault hypothesis starting at an instant tau of the window
     instead of from the start, its severity refitted at each tau of a coarse grid; the best
-    fault's tau refined by golden section. Reported when it beats the best candidate from the
+    fault whose severity is of a size worth reporting (:func:`_detectable`) has its tau refined
+    by golden section. Reported when it beats the best candidate from the
     start by PAIR_EVIDENCE in BIC (tau, and the severity too against healthy, are parameters
     more); the taus whose RSS stays within the 95 % likelihood-ratio limit are its interval.
     The onset candidate is then moved to the front as the verdict, with its severity and
@@ -668,7 +669,14 @@ def _fit_onset(problem: _Problem, candidates: list[Candidate], n: int, n_eff: fl
     for prof in profiles:
         for t in grid:
             prof.cost(t)
-    prof = min(profiles, key=lambda pr: pr.best()[2])
+    # a change point of a fault too small to report is the mismatch's, as from the start (a
+    # static friction below its limit read as a 1.2-1.5 x dynamic friction from a wrong
+    # instant: measured)
+    sized = [pr for pr in profiles if _detectable(dataclasses.replace(pr.cand,
+                                                                      severity=pr.best()[1]))]
+    if not sized:
+        return None
+    prof = min(sized, key=lambda pr: pr.best()[2])
     k = int(np.argmin([prof.cost(t) for t in grid]))
     a, b = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, len(grid) - 1)])
     g = (math.sqrt(5) - 1) / 2
