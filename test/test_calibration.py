@@ -48,10 +48,10 @@ def test_fit_calibration_recovers_a_known_bias_and_spread():
 
 
 def test_few_units_are_held_at_the_conformal_rank():
-    """Nine units: a new unit is held with probability >= 90 % only if the interval holds
-    ceil(0.9*10) = 9 of them -- all nine, the largest error included (a plain 90 % of nine
+    """Ten units: a new unit is held with probability >= 90 % only if the interval holds
+    ceil(0.9*11) = 10 of them -- all ten, the largest error included (a plain 90 % of ten
     would leave it out)."""
-    errs = [-0.3, -0.1, -0.05, -0.02, 0.0, 0.01, 0.04, 0.08, 0.6]
+    errs = [-0.3, -0.1, -0.05, -0.02, 0.0, 0.0, 0.01, 0.04, 0.08, 0.6]
     rec = [dict(fault='leakage_growth', truth=2.0, named='leakage_growth',
                 estimate=2.0 * math.exp(e), se=0.0, rms=1.0) for e in errs]
     c = fit_calibration(rec)['faults']['leakage_growth']
@@ -133,6 +133,10 @@ def test_a_linear_bias_per_scenario_is_recovered():
         pytest.approx(-0.05, abs=0.005)
     assert calibration.fault_calibration(cal, 'leakage_growth', 'eval') is cal['faults'][
         'leakage_growth']
+    # a scenario's own spread never narrower than the pooled one (nine units do not pin it)
+    pooled = cal['faults']['leakage_growth']['sigma']
+    assert cal['by_scenario']['bit']['leakage_growth']['sigma'] < pooled
+    assert calibration.fault_calibration(cal, 'leakage_growth', 'bit')['sigma'] == pooled
 
 
 def test_a_bag_is_matched_to_its_calibration_scenario_by_its_inputs():
