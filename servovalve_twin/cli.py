@@ -266,6 +266,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .apps.diagnose import diagnose_bag, parse_faults, parse_window, plot_diagnosis
     free = tuple(n.strip() for n in (args.free or '').split(',') if n.strip())
     if args.limits is not None:
+        if args.bag is not None:
+            raise TwinError('diagnose takes BAG or --limits SCENARIO, not both')
         return _print_limits(args, free, parse_faults(args.faults))
     if args.bag is None or args.json is None:
         raise TwinError('diagnose needs BAG and --json FILE (or --limits SCENARIO for the '

@@ -166,6 +166,7 @@ def test_bit_command_writes_a_scenario_and_the_limits(tmp_path, capsys):
     (['bit', '--out', 'b.txt'], 'expected a new .yaml file'),
     (['diagnose', '--limits', 'nope'], 'unknown scenario'),
     (['diagnose', '--json', 'x.json'], 'diagnose needs BAG'),
+    (['diagnose', '@paper_HD', '--limits', 'paper'], 'not both'),
     (['diagnose', '--limits', 'paper', '--faults', 'wear'], "unknown fault 'wear'"),
 ])
 def test_bad_input_is_one_line_exit_2(args, fragment, tmp_path, monkeypatch, capsys):

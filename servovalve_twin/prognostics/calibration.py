@@ -19,7 +19,7 @@ for a fraction or a value, ``span`` the distance from healthy to the alarm value
   holds ``g(truth)`` in ``ceil(0.9*(n + 1))`` of those ``n`` units at z = 1.645 (``se`` the
   fit's own standard error) -- the split-conformal rank, which makes the coverage of a new
   unit from the same distribution at least 90 % however few the units (a plain 90 % of them
-  covered 85 % of new units: measured);
+  covered 85-88 % of new units: measured);
 
 and over the units whose right hypothesis was fitted, the distribution of the fit's RMS of
 normalised residuals (``rms``): its quantiles are the goodness-of-fit reference. The result is
