@@ -839,9 +839,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--duration', type=float, default=2.0, metavar='S',
                    help='length of the test [s] (default 2)')
     p.add_argument('--max-stroke', type=float, default=0.04, metavar='M',
-                   help='largest |Com| the rig allows [m] (default 0.04)')
+                   help='largest absolute Com the rig allows [m] (default 0.04)')
     p.add_argument('--max-load', type=float, default=6000.0, metavar='N',
-                   help='largest |FR| the rig applies [N] (default 6000; 0: no load rig)')
+                   help='largest absolute FR the rig applies [N] (default 6000; 0: no load rig)')
     p.add_argument('--max-rate', type=float, metavar='M/S',
                    help='largest command rate [m/s] (default: steps)')
     p.add_argument('--seed', type=int, default=0, help='seed of the design search')
