@@ -115,3 +115,28 @@ def _panels(node):
     if isinstance(node, str):
         return [node]
     return _panels(node['first']) + _panels(node['second'])
+
+
+def test_the_documented_client_subprotocols():
+    """doc/how-to/foxglove.md says which clients connect: those offering foxglove.sdk.v1 or
+    v1.1; one offering only foxglove.websocket.v1 is refused with HTTP 400. An upgrade of
+    foxglove-sdk that changes this fails here, so the page cannot go stale."""
+    import foxglove
+    import websockets
+    srv = foxglove.start_server(port=0)
+
+    async def offer(proto):
+        try:
+            async with websockets.connect(f'ws://127.0.0.1:{srv.port}',
+                                          subprotocols=[proto]) as ws:
+                return ws.subprotocol
+        except websockets.exceptions.InvalidStatus as exc:
+            return exc.response.status_code
+
+    try:
+        got = {p: asyncio.run(offer(p)) for p in ('foxglove.sdk.v1', 'foxglove.sdk.v1.1',
+                                                  'foxglove.websocket.v1')}
+    finally:
+        srv.stop()
+    assert got == {'foxglove.sdk.v1': 'foxglove.sdk.v1', 'foxglove.sdk.v1.1': 'foxglove.sdk.v1.1',
+                   'foxglove.websocket.v1': 400}
