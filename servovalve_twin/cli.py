@@ -329,6 +329,19 @@ def _print_limits(args: argparse.Namespace, free: tuple[str, ...],
     return 0
 
 
+def _write_new(path: Path, text: str) -> None:
+    """``text`` into a new file (never an existing one, nor through a symbolic link); on
+    any failure the half-written file, ours, is removed."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_NOFOLLOW', 0),
+                 0o644)
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(text)
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
+
+
 def cmd_bit(args: argparse.Namespace) -> int:
     import yaml
     from .apps.compare import write_json
@@ -342,18 +355,10 @@ def cmd_bit(args: argparse.Namespace) -> int:
     design = DEFAULTS.replace(**_overrides(args))
     rig = RigLimits(stroke=args.max_stroke, load=args.max_load, rate=args.max_rate)
     scn, crit = design_bit(args.duration, rig, design=design, seed=args.seed)
-    text = ('# A pre-flight built-in test designed by `servovalve-twin bit` (see '
-            'servovalve_twin.prognostics.excitation):\n# fly it, record it, and '
-            '`servovalve-twin diagnose` the bag.\n'
-            + yaml.safe_dump(scn, sort_keys=False, default_flow_style=None, width=100))
-    fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_NOFOLLOW', 0),
-                 0o644)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
-            fh.write(text)
-    except BaseException:
-        out.unlink(missing_ok=True)            # ours: a half-written test is no test
-        raise
+    _write_new(out, '# A pre-flight built-in test designed by `servovalve-twin bit` (see '
+               'servovalve_twin.prognostics.excitation):\n# fly it, record it, and '
+               '`servovalve-twin diagnose` the bag.\n'
+               + yaml.safe_dump(scn, sort_keys=False, default_flow_style=None, width=100))
     lims = {'paper': detection_limits('paper', design),
             out.stem: detection_limits(scn, design)}
     if args.json:
@@ -394,8 +399,7 @@ def cmd_monitor_thresholds(args: argparse.Namespace) -> int:
             '--ros-args --params-file THIS\n'
             + yaml.safe_dump({'monitor': {'ros__parameters': dict(monitor_model=model, **th)}},
                              sort_keys=False))
-    with open(out, 'x', encoding='utf-8') as fh:
-        fh.write(text)
+    _write_new(out, text)
     print(text, end='')
     return 0
 

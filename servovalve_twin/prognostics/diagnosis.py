@@ -27,10 +27,10 @@ is not reported over healthy: that small a fit is the model's mismatch and the n
 healthy HD units, nuisance at 1.5 x the documented spread, M and CJ free, three scenarios: at
 most 0.15 of the way for every fault whose likelihood is not flat). The detection limits this
 sets, with those of the excitation, are :mod:`.excitation`'s. A pair is reported only when
-both its faults are that large, and when its score is :data:`PAIR_EVIDENCE` (10) below each of its two single faults'
--- a second fault absorbs some of SQ's mismatch against HD and wins by 1-7 points on units
-with one fault (measured), where units with two faults give 57-136. ``candidates`` keep every
-fit, in score order after the verdict.
+both its faults are that large, and when its score is :data:`PAIR_EVIDENCE` (10) below each of
+its two single faults' -- a second fault absorbs some of SQ's mismatch against HD and wins by
+1-7 points on units with one fault (measured), where units with two faults give 57-136.
+``candidates`` keep every fit, in score order after the verdict.
 
 Confidence. A severity's 95 % interval comes from the fit's Jacobian, ``cov = s^2
 (J^T J)^-1`` inflated by ``n/n_eff`` for the correlation -- ``n_eff`` here from the
@@ -660,8 +660,8 @@ def _fit_onset(problem: _Problem, candidates: list[Candidate], n: int, n_eff: fl
                ) -> dict[str, Any] | None:
     """A change point: each single-fault hypothesis starting at an instant tau of the window
     instead of from the start, its severity refitted at each tau of a coarse grid; the best
-    fault whose severity is of a size worth reporting (:func:`_detectable`) has its tau refined
-    by golden section. Reported when it beats the best candidate from the
+    fault whose severity is of a size worth reporting (:func:`_sized`) has its tau refined by
+    golden section. Reported when it beats the best candidate from the
     start by PAIR_EVIDENCE in BIC (tau, and the severity too against healthy, are parameters
     more); the taus whose RSS stays within the 95 % likelihood-ratio limit are its interval.
     The onset candidate is then moved to the front as the verdict, with its severity and
@@ -678,8 +678,7 @@ def _fit_onset(problem: _Problem, candidates: list[Candidate], n: int, n_eff: fl
     # a change point of a fault too small to report is the mismatch's, as from the start (a
     # static friction below its limit read as a 1.2-1.5 x dynamic friction from a wrong
     # instant: measured)
-    sized = [pr for pr in profiles if _detectable(dataclasses.replace(pr.cand,
-                                                                      severity=pr.best()[1]))]
+    sized = [pr for pr in profiles if _sized(pr.fault, pr.best()[1])]
     if not sized:
         return None
     prof = min(sized, key=lambda pr: pr.best()[2])
@@ -733,12 +732,16 @@ def _one_sided(fault: str, interval: tuple[float, float]) -> str:
     return f'{fault} {">=" if up else "<="} {near:.4g}'
 
 
-def _detectable(c: Candidate, fraction: float = DETECTABLE) -> bool:
-    """Every fault of ``c`` at least ``fraction`` (DETECTABLE) of the way from healthy to its
-    alarm value, in the fault's calibration coordinate."""
+def _sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:
+    """``severity`` at least ``fraction`` (DETECTABLE) of the way from healthy to the fault's
+    alarm value, in its calibration coordinate."""
     from .calibration import to_g
-    return all(abs(to_g(f, s)) >= fraction * abs(to_g(f, FAULTS[f].demo))
-               for f, s in zip(c.faults, c.severities))
+    return abs(to_g(fault, severity)) >= fraction * abs(to_g(fault, FAULTS[fault].demo))
+
+
+def _detectable(c: Candidate, fraction: float = DETECTABLE) -> bool:
+    """Every fault of ``c`` of a size worth reporting (:func:`_sized`)."""
+    return all(_sized(f, s, fraction) for f, s in zip(c.faults, c.severities))
 
 
 def _jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
