@@ -190,7 +190,10 @@ def _discovery_off(enabled: bool = True):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    with _discovery_off(not args.discoverable):
+    # a namespaced, following or paced twin is there to share a graph with other processes
+    shared = (args.namespace or args.clock == 'follow' or args.followers
+              or args.real_time_factor is not None)
+    with _discovery_off(not (args.discoverable or shared)):
         return _run(args)
 
 
@@ -217,7 +220,9 @@ def _run(args: argparse.Namespace) -> int:
                            {'model': args.estimator,
                             'model_form': args.estimator != args.valve_model})]
                          if args.estimator else []),
-                      foxglove=args.foxglove,
+                      foxglove=args.foxglove, namespace=args.namespace, clock=args.clock,
+                      followers=args.followers,
+                      real_time_factor=args.real_time_factor,
                       on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
                       if args.progress else None)
     if bar is not None:
@@ -684,6 +689,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help='lockstep period (default 0.001; must divide 1 ms)')
     p.add_argument('--clock-period', type=_positive_float, default=1e-2, metavar='S',
                    help='/clock publication period in simulated time (default 0.01)')
+    p.add_argument('--real-time-factor', type=_positive_float, metavar='X',
+                   help='pace simulated time to X simulated seconds per wall second (1: real '
+                        'time), so that ordinary use_sim_time nodes beside the twin keep up; '
+                        'default: as fast as possible')
+    p.add_argument('--namespace', metavar='NS',
+                   help="the actuator's namespace: its nodes and topics under /NS (/NS/xj), "
+                        'so that several actuators share one graph; /clock stays global')
+    p.add_argument('--clock', choices=('own', 'follow'), default='own',
+                   help="own: publish /clock (the graph's one clock owner, default); follow: "
+                        "run each tick once another owner's /clock reaches it")
+    p.add_argument('--followers', type=int, default=0, metavar='N',
+                   help='the clock owner starts once N twins following its /clock (other '
+                        'namespaces) are on the graph (default 0: at once)')
     p.add_argument('--bag', metavar='DIR', help='bag directory (default bags/<scenario>_<model>)')
     p.add_argument('--no-bag', action='store_true', help='do not record')
     p.add_argument('--overwrite', action='store_true', help='replace an existing bag')
@@ -699,7 +717,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_algorithm_options(p, many=True)
     p.add_argument('--discoverable', action='store_true',
                    help='keep DDS discovery on (to watch the topics from other processes); by '
-                        'default the run is confined to its process')
+                        'default the run is confined to its process, unless --namespace, '
+                        '--clock follow or --real-time-factor is given')
     _add_foxglove_option(p)
     p.set_defaults(func=cmd_run)
 

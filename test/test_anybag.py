@@ -34,6 +34,8 @@ LAYOUTS = {
     'sqlite3-split': dict(storage='sqlite3', split=2),
     'sqlite3-v4': dict(storage='sqlite3', version=4, provenance=False),
     'foreign-mcap': dict(storage='mcap', provenance=False),
+    # one actuator of several in a graph: its topics under /left (run --namespace left)
+    'mcap-namespaced': dict(storage='mcap', namespace='/left'),
 }
 
 
@@ -61,7 +63,10 @@ def layouts(tmp_path_factory):
     for name, kw in LAYOUTS.items():
         kw = dict(kw)
         with_prov = kw.pop('provenance', True)
-        write_bag(root / name, msgs=msgs, provenance=record if with_prov else None, **kw)
+        ns = kw.pop('namespace', '')
+        rec = dict(record, namespace=ns) if ns else record
+        mine = [(t if t == '/clock' else ns + t, *rest) for t, *rest in msgs]
+        write_bag(root / name, msgs=mine, provenance=rec if with_prov else None, **kw)
         out[name] = (root / name, with_prov)
     return out, msgs, xj
 
@@ -136,10 +141,11 @@ def test_replay_play_and_replay_into(layouts, name, tmp_path, capsys, ros_contex
     capsys.readouterr()
     assert main(['play', str(path), '--rate', '1000']) == 0
     assert f'play: done: {len(msgs)} messages' in capsys.readouterr().out
+    # the user's node in the actuator's namespace (relative topic names, as the twin's nodes)
     node = ros_context and __import__('rclpy.node', fromlist=['Node']).Node(
-        'probe', context=ros_context)
+        'probe', context=ros_context, namespace=LAYOUTS[name].get('namespace', '/'))
     seen = []
-    node.create_subscription(Float64, '/xj', lambda m: seen.append(m.data), 10)
+    node.create_subscription(Float64, 'xj', lambda m: seen.append(m.data), 10)
     try:
         replay_into(node, path)
     finally:

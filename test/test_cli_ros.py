@@ -28,6 +28,14 @@ def test_run_bad_input_exit_2(tmp_path, capsys):
     assert "unknown valve model 'C9'" in capsys.readouterr().err
     assert main(['run', '--valve-model', 'C2', '--control-period', '0.0015', '--no-bag']) == 2
     assert 'must divide the 1 ms' in capsys.readouterr().err
+    for extra, fragment in ((['--clock', 'follow', '--real-time-factor', '1'],
+                             'paced by the clock owner'),
+                            (['--namespace', 'left wing'], "namespace 'left wing'"),
+                            (['--clock', 'follow', '--followers', '1'], 'only the clock owner'),
+                            (['--followers', '-2'], 'expected a count >= 0')):
+        assert main(['run', '--valve-model', 'C2', '--no-bag', *extra]) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_compare_tables_json_plot_and_tolerance(tmp_path, capsys):

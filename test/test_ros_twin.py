@@ -318,3 +318,119 @@ def test_a_fault_simulate_accepts_is_accepted_by_the_twin(ros_context):
     ref = simulate('C2', raw, ecu_period=1e-3)
     assert len(result.signals['t']) == 301
     np.testing.assert_array_equal(result.signals['xj'], ref['xj'])
+
+
+def _spin_while(node_or_nodes, procs, timeout_s=120.0):
+    """Spin the test's own nodes until every process has ended (bounded)."""
+    import rclpy.executors
+    nodes = node_or_nodes if isinstance(node_or_nodes, list) else [node_or_nodes]
+    ex = rclpy.executors.SingleThreadedExecutor(context=nodes[0].context)
+    for n in nodes:
+        ex.add_node(n)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while any(p.poll() is None for p in procs) and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+        for _ in range(50):                 # what is still in flight
+            ex.spin_once(timeout_sec=0.01)
+    finally:
+        ex.shutdown()
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+    return [p.communicate() for p in procs]
+
+
+def _scenario_file(tmp_path, name, raw):
+    import yaml
+    path = tmp_path / f'{name}.yaml'
+    path.write_text(yaml.safe_dump(raw))
+    return str(path)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_sim_time_node_beside_a_paced_twin_sees_every_timer_period(ros_context, tmp_path):
+    """``run --real-time-factor 1``: an ordinary rclpy node on ``use_sim_time`` with a 100 Hz
+    timer, in another process, fires once per 10 ms of simulated time. Unpaced, the twin
+    outruns it (its /clock jumps and the timer skips periods)."""
+    import subprocess
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+    from conftest import console_script
+    # 3 s: discovery between two new processes took 0.4-1.2 s here
+    scenario = _scenario_file(tmp_path, 'three_seconds', {**SHORT, 'duration': 3.0})
+    user = Node('user', context=ros_context,
+                parameter_overrides=[Parameter('use_sim_time', value=True)])
+    fired, clocks = [], []
+    user.create_timer(0.01, lambda: fired.append(user.get_clock().now().nanoseconds))
+    user.create_subscription(Clock, '/clock', lambda m: clocks.append(
+        m.clock.sec * 10**9 + m.clock.nanosec), 10)
+    proc = subprocess.Popen([console_script('servovalve-twin'), 'run', '--valve-model', 'C2',
+                             '--scenario', scenario, '--no-bag', '--real-time-factor', '1',
+                             '--clock-period', '0.01'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    (out, err), = _spin_while(user, [proc])
+    user.destroy_node()
+    print(out, err[-2000:])
+    assert proc.returncode == 0
+    assert clocks == sorted(clocks) and clocks[-1] == 3_000_000_000
+    # the timer's periods within the simulated time this node saw (after its first /clock)
+    period = 10_000_000
+    due = set(range(clocks[0] // period + 1, clocks[-1] // period + 1))
+    seen = {t // period for t in fired} & due
+    print(f'{len(seen)} of {len(due)} timer periods seen from {clocks[0] * 1e-9:.3f} s')
+    assert len(due) >= 100           # the node saw a good part of the run
+    assert len(seen) >= 0.99 * len(due)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
+    """Two twins in one graph: /left owns /clock (paced, starting once /right is there),
+    /right follows it with a fault of its own. A watcher sees both state streams and one /clock publisher, never going back; each
+    bag is its own actuator's run bit for bit (the follower's lockstep does not depend on the
+    owner's pace), the fault in /right's only."""
+    import subprocess
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Float64
+    from servovalve_twin.bag.reader import read_bag
+    from conftest import console_script
+    healthy = {**SHORT, 'duration': 1.0}
+    faulty = {**healthy, 'faults': [{'at': 0.1, 'fault': 'dynamic_friction', 'severity': 15.0}]}
+    watcher = Node('watcher', context=ros_context)
+    clocks, xj = [], {'left': 0, 'right': 0}
+    owners = []
+    watcher.create_subscription(Clock, '/clock', lambda m: (
+        clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
+        owners.append(watcher.count_publishers('/clock'))), 10)
+    for ns in xj:
+        watcher.create_subscription(Float64, f'/{ns}/xj',
+                                    lambda m, ns=ns: xj.__setitem__(ns, xj[ns] + 1), 10)
+    cli = console_script('servovalve-twin')
+
+    def twin(ns, raw, *extra):
+        return subprocess.Popen([cli, 'run', '--valve-model', 'C2', '--namespace', ns,
+                                 '--scenario', _scenario_file(tmp_path, ns, raw),
+                                 '--bag', str(tmp_path / ns), *extra],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    right = twin('right', faulty, '--clock', 'follow')
+    left = twin('left', healthy, '--real-time-factor', '2', '--followers', '1')
+    outs = _spin_while(watcher, [left, right])
+    watcher.destroy_node()
+    for p, (out, err) in zip((left, right), outs):
+        print(out, err[-1500:])
+        assert p.returncode == 0
+    print(f'{len(clocks)} /clock seen; publishers of /clock: {sorted(set(owners))}; '
+          f'/xj messages: {xj}')
+    assert clocks and all(b >= a for a, b in zip(clocks, clocks[1:]))
+    assert set(owners) == {1}
+    assert xj['left'] > 0 and xj['right'] > 0
+    for ns, raw in (('left', healthy), ('right', faulty)):
+        run = read_bag(tmp_path / ns)
+        assert run.provenance.namespace == f'/{ns}'
+        assert f'/{ns}/xj' in run.topics and '/xj' not in run.topics
+        ref = simulate('C2', raw, ecu_period=1e-3)
+        for c in ('xj', 'p12', 'cor'):
+            np.testing.assert_array_equal(run.signals[c], ref[c])

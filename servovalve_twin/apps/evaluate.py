@@ -21,16 +21,17 @@ def bag_inputs(bag: AnyBag, names) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The ticks (log times, ns) at which every one of ``names`` was recorded, and each
     signal's value at them."""
     bag_path = bag.path
+    topics = {name: bag.provenance.topic(name) for name in names}     # '/left/xj' namespaced
     for name in names:
-        topic = f'/{name}'
+        topic = topics[name]
         info = bag.topics.get(topic)
         if info is None:
             raise BagError(f'bag {str(bag_path)!r} has no {topic} topic (the algorithm reads '
                            f'{list(names)}; the bag has {sorted(bag.topics)})')
         if info.type != FLOAT64:
             raise BagError(f'bag {str(bag_path)!r}: {topic} is {info.type}, not {FLOAT64}')
-    got = float64_series(bag, [f'/{name}' for name in names])
-    series = {name: got.get(f'/{name}', (np.zeros(0, dtype=np.int64), np.zeros(0)))
+    got = float64_series(bag, list(topics.values()))
+    series = {name: got.get(topics[name], (np.zeros(0, dtype=np.int64), np.zeros(0)))
               for name in names}
     common = None
     for t, _ in series.values():

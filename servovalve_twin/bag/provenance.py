@@ -33,12 +33,15 @@ class Provenance:
     scenario: dict[str, Any] | None = None      # Scenario.to_dict()
     params: dict[str, Any] = dataclasses.field(default_factory=dict)   # resolved parameters
     record: dict[str, str] = dataclasses.field(default_factory=dict)   # as stored
+    #: the actuator's namespace ('' or '/left'): its topics are '/left/xj', ...
+    namespace: str = ''
 
     def __bool__(self) -> bool:
         return bool(self.record)
 
     @classmethod
-    def build(cls, valve_model: str, scenario, params, control_period: float) -> 'Provenance':
+    def build(cls, valve_model: str, scenario, params, control_period: float, *,
+              namespace: str = '') -> 'Provenance':
         """The record of a run the twin makes (``scenario`` a Scenario, ``params`` EhaParams)."""
         from .. import __version__
         record = {'package': 'servovalve_twin', 'version': __version__,
@@ -46,6 +49,8 @@ class Provenance:
                   'scenario_name': scenario.name,
                   'scenario': yaml.safe_dump(scenario.to_dict(), sort_keys=False),
                   'params': yaml.safe_dump(dict(params.resolved()), sort_keys=False)}
+        if namespace.strip('/'):            # absent: the global namespace (older bags too)
+            record['namespace'] = '/' + namespace.strip('/')
         return cls.from_record(record, 'the twin')
 
     @classmethod
@@ -71,13 +76,24 @@ class Provenance:
             if not (v is None or isinstance(v, (int, float, bool))):
                 raise BagError(f'{bad} "params" gives {k} = {v!r}; expected numbers')
         scenario = _yaml_map(rec.get('scenario'), f'{bad} "scenario"') or None
+        namespace = rec.get('namespace', '').rstrip('/')
+        if namespace and (not namespace.startswith('/') or not all(
+                part and (part[0].isalpha() or part[0] == '_')
+                and all(c.isalnum() or c == '_' for c in part)
+                for part in namespace[1:].split('/'))):
+            raise BagError(f'{bad} has namespace {rec["namespace"][:80]!r}; expected an '
+                           "absolute ROS namespace such as '/left'")
         out = cls(valve_model=rec.get('valve_model') or None, control_period=cp,
                   scenario_name=rec.get('scenario_name'), scenario=scenario, params=params,
-                  record=rec)
+                  record=rec, namespace=namespace)
         # validated now, once, so that no command meets a malformed record half-way through
         out.eha_params(where)
         out.scenario_object(where)
         return out
+
+    def topic(self, name: str) -> str:
+        """The bag's name of the twin's topic ``name`` ('xj' -> '/left/xj')."""
+        return f'{self.namespace}/{name.lstrip("/")}'
 
     def to_record(self) -> dict[str, str]:
         """The record as it is stored (MCAP metadata)."""

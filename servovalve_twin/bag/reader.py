@@ -85,6 +85,12 @@ def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
         raise BagError(f'bag {str(p)!r} is corrupt: its summary counts {claimed.get(bad[0], 0)} '
                        f'messages on {bad[0]} but it holds {counts.get(bad[0], 0)}; try: '
                        f'servovalve-twin reindex {p}')
+    ns = bag.provenance.namespace
+    if ns:      # a namespaced actuator's topics ('/left/xj') are the twin's signals
+        arrays = {t[len(ns):]: v for t, v in arrays.items() if t.startswith(ns + '/')}
+        if not arrays:
+            raise BagError(f'bag {str(p)!r} holds no std_msgs/Float64 topics under its '
+                           f'namespace {ns}')
     return BagRun(path=p, signals=signal_table(arrays), topics=counts,
                   provenance=bag.provenance, series=arrays)
 

@@ -10,7 +10,8 @@ from .writer import BagWriter
 
 
 class Recorder:
-    """``types``: topic (absolute, '/xj') -> ROS type name ('std_msgs/msg/Float64').
+    """``types``: topic as the graph names it ('/xj', '/left/xj') -> ROS type name
+    ('std_msgs/msg/Float64').
 
     Takes every message the twin's nodes publish, at the moment they publish it (their
     ``tap``), and writes it to the bag with the tick's simulated time as log and publish time,
@@ -20,8 +21,11 @@ class Recorder:
     writes as the CSV of the ROS run's own messages."""
 
     def __init__(self, writer: BagWriter | None, types: Mapping[str, str], *,
-                 keep_values: bool, flush_ns: int = 50_000_000):
+                 keep_values: bool, flush_ns: int = 50_000_000, namespace: str = ''):
         self.writer = writer
+        #: the nodes' namespace ('' or '/left'): their relative topic 'xj' is '/left/xj' on
+        #: the graph and in the bag (``types`` names topics as the graph does)
+        self.namespace = namespace.rstrip('/')
         self.keep_values = keep_values
         self.now_ns = 0
         self.flush_ns = flush_ns
@@ -34,13 +38,22 @@ class Recorder:
         self.encoders = {topic: ENCODERS[tn] for topic, tn in self.types.items()}
         float_topics = [t for t, tn in self.types.items() if tn == 'std_msgs/msg/Float64']
         # per Float64 topic: times and values not yet written; all of them when keep_values
-        self._pending = {t[1:]: ([], []) for t in float_topics}
+        self._pending = {self._relative(t): ([], []) for t in float_topics}
         self.float_topics = tuple(self._pending)
-        self._written = {t[1:]: 0 for t in float_topics}
+        self._written = {t: 0 for t in self._pending}
         self._other = 0
         if writer is not None:
             for topic, type_name in self.types.items():
                 writer.add_topic(topic, type_name)
+
+    def _relative(self, name: str) -> str:
+        """A graph name of ``types`` as the nodes name it: '/left/xj' -> 'xj'."""
+        prefix = self.namespace + '/'
+        return name[len(prefix):] if name.startswith(prefix) else name[1:]
+
+    def _graph(self, topic: str) -> str:
+        """A node's topic as the graph names it: 'xj' -> '/left/xj'; '/clock' stays."""
+        return topic if topic[0] == '/' else f'{self.namespace}/{topic}'
 
     def record(self, topic: str, msg: Any) -> None:
         """The nodes' tap: ``topic`` as the node names it (relative: 'xj', or '/clock')."""
@@ -49,13 +62,13 @@ class Recorder:
         elif self.writer is None and not self.sinks:
             self._other += 1                  # nothing takes the bytes: do not encode them
         else:
-            name = topic if topic[0] == '/' else '/' + topic
+            name = self._graph(topic)
             self.record_bytes(name, self.encoders[name](msg))
 
     def record_value(self, topic: str, value: float) -> None:
         """:meth:`record` for a Float64 topic's value (the nodes' ``tap_value``): no message."""
         if self.sinks:
-            name = '/' + topic
+            name = self._graph(topic)
             data = encode_float64_value(value)
             for sink in self.sinks:
                 sink(name, data, self.now_ns)
@@ -65,8 +78,8 @@ class Recorder:
 
     def record_bytes(self, topic: str, data: bytes) -> None:
         """:meth:`record` of a message already encoded (a non-Float64 topic; relative names
-        are taken as the twin's, '/'-prefixed)."""
-        name = topic if topic[0] == '/' else '/' + topic
+        are taken as the nodes', in their namespace)."""
+        name = self._graph(topic)
         for sink in self.sinks:
             sink(name, data, self.now_ns)
         if self.writer is not None:
@@ -85,7 +98,8 @@ class Recorder:
         self._flushed_ns = self.now_ns
         if self.writer is not None:        # every topic's values at once, in topic order
             self.writer.write_float64_many(
-                [('/' + topic, times[self._written[topic]:], values[self._written[topic]:])
+                [(self._graph(topic), times[self._written[topic]:],
+                  values[self._written[topic]:])
                  for topic, (times, values) in self._pending.items()])
         for topic, (times, values) in self._pending.items():
             if self.keep_values:

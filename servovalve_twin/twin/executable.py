@@ -16,15 +16,29 @@ from .lockstep import run_twin
 
 USAGE = ('usage: twin --ros-args -p valve_model:=NAME -p scenario:=NAME|FILE '
          '-p control_period:=S [-p bag:=DIR | -p record:=false] [-p overwrite:=true] '
-         '[-p monitor:=C2] [-p foxglove:=8765] [-p PARAM:=VALUE ...]')
+         '[-p monitor:=C2] [-p foxglove:=8765] [-p clock:=own|follow] '
+         '[-p followers:=N] [-p real_time_factor:=X] [-p clock_period:=S] [-r __ns:=/NS] '
+         '[-p PARAM:=VALUE ...]')
 OPTIONS = ('valve_model', 'scenario', 'control_period', 'bag', 'record', 'overwrite',
-           'monitor', 'foxglove')
+           'monitor', 'foxglove', 'clock', 'followers', 'real_time_factor', 'clock_period')
+
+
+def _seconds(values: dict, name: str, default: float | None) -> float | None:
+    """``values.pop(name)`` as a positive number (an integer given for it too)."""
+    v = values.pop(name, default)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float('inf'):
+        raise TwinError(f'parameter {name} = {v!r}: expected a positive number')
+    return float(v)
 
 
 def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin twin --ros-args -p valve_model:=C4 -p scenario:=paper
     -p control_period:=0.001 [-p bag:=bags/my_run] [-p record:=false] [-p overwrite:=true]
-    [-p monitor:=C2]``; other ``-p NAME:=VALUE`` set physical parameters. Recording is on by
+    [-p monitor:=C2] [-p clock:=follow | -p followers:=1] [-p real_time_factor:=1.0]
+    [-p clock_period:=0.01]
+    [-r __ns:=/left]``; other ``-p NAME:=VALUE`` set physical parameters. Recording is on by
     default, into ``bags/<scenario>_<valve_model>_<UTC time>``."""
     argv = list(sys.argv if args is None else args)
     if stray_arguments(argv):
@@ -35,18 +49,26 @@ def main(args: Sequence[str] | None = None) -> int:
         values = ros_parameters(context, 'twin', OPTIONS, allow=lambda n: n in PARAM_NAMES)
         valve_model = values.pop('valve_model', 'C2')
         scenario = values.pop('scenario', 'paper')
-        period = float(values.pop('control_period', 1e-3))
+        period = _seconds(values, 'control_period', 1e-3)
         bag = values.pop('bag', '')
         record = bool(values.pop('record', True))
         overwrite = bool(values.pop('overwrite', False))
         monitor = values.pop('monitor', '') or None
         foxglove = values.pop('foxglove', None)
+        clock = values.pop('clock', 'own')
+        followers = values.pop('followers', 0)
+        if isinstance(followers, bool) or not isinstance(followers, int):
+            raise TwinError(f'parameter followers = {followers!r}: expected an integer >= 0')
+        rtf = _seconds(values, 'real_time_factor', None)
+        clock_period = _seconds(values, 'clock_period', 1e-2)
         if record and not bag:
             bag = default_bag_dir(load_scenario(scenario).name, valve_model)
         result = run_twin(valve_model, scenario, values, control_period=period,
                           bag=bag if record else None, context=context, keep_values=False,
                           monitor=monitor, overwrite=overwrite,
-                          foxglove=None if foxglove is None else int(foxglove))
+                          foxglove=None if foxglove is None else int(foxglove),
+                          clock=str(clock), clock_period=clock_period, followers=followers,
+                          real_time_factor=rtf)
     except TwinError as exc:
         print(f'twin: error: {exc}', file=sys.stderr)
         return 2

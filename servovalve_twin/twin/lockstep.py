@@ -33,6 +33,7 @@ loop at a tick boundary (``EventsExecutor`` ignores both) and the bag is finaliz
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import signal
 import sys
@@ -43,13 +44,18 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import rclpy
 from rclpy.context import Context
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from rclpy.validate_namespace import validate_namespace
+from rclpy.exceptions import InvalidNamespaceException
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Empty
 
 from ..bag.provenance import PROVENANCE, Provenance
 from ..bag.recorder import Recorder
@@ -71,6 +77,20 @@ from ..physics.valves import get_monitor_model, get_valve_model
 from ..prognostics.algorithm import load_algorithm
 
 TICK_DEADLINE_S = 5.0
+#: the longest sleep between two looks at a stop request (pacing, following)
+PACE_SLICE_S = 0.05
+#: following: how often (wall) a twin waiting for /clock checks that the owner is still there
+OWNER_CHECK_S = 2.0
+#: how long the clock owner waits at the end for its last /clock to reach the followers
+CLOCK_ACK_S = 2.0
+#: /clock from its owner: the latest time is all that counts, and a follower that joins late
+#: (discovery) is handed it at once (transient local); rclpy's time sources (best effort,
+#: volatile) match it
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: the twin publishes /clock itself, or follows another owner's
+CLOCK_MODES = ('own', 'follow')
 #: how often (simulated time) the executor gets a turn: node clocks and parameter requests
 #: follow at this pace, external subscribers are noticed at it
 GRAPH_PERIOD_NS = 100_000_000
@@ -129,6 +149,20 @@ class Twin:
     :param executor: 'events' (rclpy's EventsExecutor) or 'single' (SingleThreadedExecutor)
     :param foxglove: serve every message live to the Foxglove app on this localhost port (0:
         any free one; :mod:`..nodes.live`)
+    :param namespace: the actuator's namespace ('left' or '/left'): its nodes, topics and the
+        bag's topic names move under it (``/left/xj``); ``/clock`` stays global. A
+        ``--ros-args -r __ns:=/left`` in ``args`` does the same
+    :param clock: 'own' -- the twin publishes ``/clock``, the graph's one clock owner; or
+        'follow' -- another owner (a twin, the ``clock`` executable) publishes it and this twin
+        runs each tick only once ``/clock`` has reached it, so several actuators share one
+        simulated time. A follower's results do not depend on the owner's pace (lockstep)
+    :param real_time_factor: pace simulated time to this many simulated seconds per wall
+        second (1.0: real time), checked at every ``clock_period``; None (default): as fast as
+        possible. A paced twin publishes every ``/clock`` on DDS, so that a ``use_sim_time``
+        node beside it sees each of its timer periods
+    :param followers: the clock owner starts its run once this many twins that follow its
+        ``/clock`` (other namespaces) are on the graph -- discovery takes 0.4-1.2 s here, and
+        a follower that joins late misses no tick but the simulated time it waited for
     """
 
     def __init__(self, valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
@@ -140,8 +174,26 @@ class Twin:
                  base_params: EhaParams | None = None,
                  on_flush: Callable[[float], None] | None = None,
                  monitor: str | None = None, algorithms: Sequence[Any] = (),
-                 foxglove: int | None = None):
+                 foxglove: int | None = None, namespace: str | None = None,
+                 clock: str = 'own', real_time_factor: float | None = None,
+                 followers: int = 0):
         get_valve_model(valve_model)
+        if clock not in CLOCK_MODES:
+            raise TwinError(f'clock {clock!r}: expected one of {", ".join(CLOCK_MODES)}')
+        if real_time_factor is not None and not (
+                math.isfinite(real_time_factor) and real_time_factor > 0):
+            raise TwinError(f'real-time factor {real_time_factor}: expected a positive number '
+                            '(1.0 is real time)')
+        if real_time_factor is not None and clock == 'follow':
+            raise TwinError('a twin that follows /clock is paced by the clock owner: give the '
+                            'real-time factor to the owner')
+        if followers and clock == 'follow':
+            raise TwinError('followers: only the clock owner waits for its followers')
+        if followers < 0:
+            raise TwinError(f'followers {followers}: expected a count >= 0')
+        self.follow = clock == 'follow'
+        self.followers = int(followers)
+        self.real_time_factor = real_time_factor
         self.scenario = load_scenario(scenario)
         self.params = effective_params(self.scenario, overrides, base_params)
         self.valve_model = valve_model
@@ -174,6 +226,8 @@ class Twin:
                                                                            self.scenario))
         self.bus = LocalBus()
         kw = dict(context=self.context, lockstep=True, bus=self.bus)
+        if namespace:
+            kw['namespace'] = _absolute_namespace(namespace)
         self.nodes: list[Node] = []
         if monitor is not None:
             get_monitor_model(monitor)
@@ -187,10 +241,22 @@ class Twin:
             self.plant = Plant(params=self.params, **kw, parameter_overrides=[
                 sim, period, Parameter('valve_model', Parameter.Type.STRING, valve_model)] + [
                 _ros_param(n, self.params) for n in Plant.declared_physical()])
-            self.clock = Node('twin_clock', context=self.context, parameter_overrides=[sim])
-            self.clock_pub = self.clock.create_publisher(Clock, '/clock', 10)
+            self.clock = Node('twin_clock', context=self.context, parameter_overrides=[sim],
+                              **({'namespace': kw['namespace']} if namespace else {}))
+            #: where the actuator's topics live: '' or '/left' (an explicit namespace or a
+            #: __ns remap among the context's arguments)
+            self.namespace = self.plant.get_namespace().rstrip('/')
+            self.clock_pub = None if self.follow else self.clock.create_publisher(
+                Clock, '/clock', CLOCK_QOS)
             self._turn: Future | None = None
-            self.clock.create_subscription(Clock, '/clock', self._on_clock, QOS)
+            self._owner_ns = -1         # the latest /clock seen (from the owner, following)
+            self.clock.create_subscription(Clock, '/clock', self._on_clock,
+                                           CLOCK_QOS if self.follow else QOS)
+            if self.follow:
+                # a follower's executor turns end at a message to itself on a hidden topic
+                # (no /clock of its own to wait on; EventsExecutor takes no guard condition)
+                self._turn_pub = self.clock.create_publisher(Empty, '~/_turn', QOS)
+                self.clock.create_subscription(Empty, '~/_turn', self._on_turn, QOS)
             self.monitor = None
             topics = dict(TOPICS)
             if monitor is not None:
@@ -211,13 +277,15 @@ class Twin:
                                      parameter_overrides=[sim, period])
                 self.algorithms.append(node)
                 topics.update(algorithm_topics(alg))
-            types = {f'/{t}': _type_name(spec[0]) for t, spec in topics.items()}
+            types = {f'{self.namespace}/{t}': _type_name(spec[0])
+                     for t, spec in topics.items()}
             types['/clock'] = 'rosgraph_msgs/msg/Clock'
             # the bag is opened once everything else has been accepted: a refused start-up
             # leaves no bag behind
             if bag is not None:
                 self.writer = BagWriter(bag, overwrite=overwrite, flush_every_ns=None)
-            self.recorder = Recorder(self.writer, types, keep_values=keep_values)
+            self.recorder = Recorder(self.writer, types, keep_values=keep_values,
+                                     namespace=self.namespace)
             self.recorder.on_flush = on_flush
             self.live = None
             if foxglove is not None:        # serve every recorded message to the Foxglove app
@@ -247,7 +315,7 @@ class Twin:
                 self.monitor.model.compile()
             if self.writer is not None:
                 record = Provenance.build(valve_model, self.scenario, self.params,
-                                          control_period)
+                                          control_period, namespace=self.namespace)
                 self.writer.add_metadata(PROVENANCE, record.to_record())
         except BaseException:          # a refusal, a failure or Ctrl-C during start-up
             if self.writer is not None:
@@ -272,19 +340,28 @@ class Twin:
         com, fr, psr = (a.tolist() for a in self.scenario.inputs(
             np.arange(n_ticks + 1, dtype=np.int64) * self.period_ns))
         faults = self._fault_ticks()
+        if self.followers:
+            self._wait_for_followers()
         wall = time.perf_counter()
         k = -1
         for k in range(n_ticks + 1):
+            t_ns = k * self.period_ns
+            if self.follow and t_ns > self._owner_ns:
+                self._wait_for_clock(t_ns)
+            elif self.real_time_factor is not None and t_ns % self.clock_period_ns == 0:
+                self._pace(wall + t_ns * 1e-9 / self.real_time_factor)
             if self.stop_requested:
                 k -= 1
                 break
-            t_ns = k * self.period_ns
             self.recorder.now_ns = t_ns
             if t_ns % self.clock_period_ns == 0:
                 msg = clock_msg(t_ns)
                 self.recorder.record('/clock', msg)
                 # on DDS: at every turn, and every period while a node outside the twin listens
-                if self._clock_wanted or t_ns % self.graph_period_ns == 0:
+                # or the run is paced for one
+                if self.clock_pub is not None and (
+                        self._clock_wanted or self.real_time_factor is not None
+                        or t_ns % self.graph_period_ns == 0):
                     self._clock_ns = t_ns
                     self.clock_pub.publish(msg)
             if k in faults:
@@ -307,6 +384,10 @@ class Twin:
                 on_tick(k, self)
         if k >= 0 and (k * self.period_ns) % self.graph_period_ns:
             self._sync_graph(k)         # a last turn at the end of the run (or at a stop)
+        if self.clock_pub is not None and self._clock_wanted:
+            # the followers' last tick waits for the last /clock: see it delivered before the
+            # publisher goes (bounded: a follower that has gone acknowledges nothing)
+            self.clock_pub.wait_for_all_acked(Duration(seconds=CLOCK_ACK_S))
         wall = time.perf_counter() - wall
         result = TwinResult(valve_model=self.valve_model, scenario=self.scenario,
                             params=self.params, control_period=self.control_period,
@@ -351,6 +432,56 @@ class Twin:
             raise TwinError(f'fault {unread[0]} at {t_ns * 1e-9:.3f} s: no node of the twin '
                             'reads its parameter')
 
+    def _pace(self, due: float) -> None:
+        """Paced: wait until the wall clock reaches ``due`` (perf_counter seconds), in slices,
+        so that a stop request is seen within one."""
+        while not self.stop_requested:
+            ahead = due - time.perf_counter()
+            if ahead <= 0:
+                return
+            time.sleep(min(ahead, PACE_SLICE_S))
+
+    def _wait_for_followers(self) -> None:
+        """The owner: wait (until stopped) for ``followers`` twins following /clock, each
+        known by its ``twin_clock`` node in a namespace other than this twin's."""
+        said = False
+        while not self.stop_requested:
+            found = {i.node_namespace for i in self.clock.get_subscriptions_info_by_topic(
+                '/clock') if i.node_name == 'twin_clock'} - {self.namespace or '/'}
+            if len(found) >= self.followers:
+                return
+            if not said:
+                said = True
+                self.clock.get_logger().info(
+                    f'waiting for {self.followers} twin(s) following /clock '
+                    f'({len(found)} on the graph)')
+            time.sleep(PACE_SLICE_S)
+
+    def _wait_for_clock(self, t_ns: int) -> None:
+        """Following: let the executor take what arrives -- the owner's /clock among it --
+        until simulated time has reached ``t_ns``. Said once when the owner is slow to come;
+        the run stops (a readable bag) when an owner that was there leaves."""
+        start = time.perf_counter()
+        said = False
+        checked = start
+        while self._owner_ns < t_ns and not self.stop_requested:
+            self.executor.spin_once(timeout_sec=PACE_SLICE_S)
+            now = time.perf_counter()
+            if now - checked < OWNER_CHECK_S:
+                continue
+            checked = now
+            owners = self.clock.count_publishers('/clock')
+            if owners == 0 and self._owner_ns >= 0:
+                self.clock.get_logger().warning(
+                    f'the /clock owner left at {self._owner_ns * 1e-9:.3f} s of simulated '
+                    'time: stopping here')
+                self.stop_requested = True
+            elif not said:
+                said = True
+                self.clock.get_logger().info(
+                    f'waiting for /clock to reach {t_ns * 1e-9:.3f} s (this twin follows '
+                    f'the clock owner; {owners} publisher(s) of /clock seen)')
+
     def _sync_graph(self, k: int) -> None:
         """Every graph period: note which topics have DDS subscribers, and let the executor
         handle everything that has arrived up to the last /clock published -- the nodes'
@@ -365,8 +496,21 @@ class Twin:
             if isinstance(n, TwinNode):
                 n.refresh_subscribers()
         # the twin's own /clock subscribers: every node's time source, and _on_clock
-        self._clock_wanted = self.clock_pub.get_subscription_count() > len(self.nodes) + 1
+        if self.clock_pub is not None:
+            self._clock_wanted = (self.clock_pub.get_subscription_count()
+                                  > len(self.nodes) + 1)
         self._warn_foreign_publishers()
+        if self.follow:
+            # no /clock of our own: the turn ends at a message to itself sent now, queued
+            # behind everything that has arrived
+            self._turn = Future()
+            self._turn_pub.publish(Empty())
+            self.executor.spin_until_future_complete(self._turn, timeout_sec=TICK_DEADLINE_S)
+            if not self._turn.done():
+                raise TwinError(f'tick {k}: the executor did not take its turn within '
+                                f'{TICK_DEADLINE_S} s')
+            self._turn = None
+            return
         if self._clock_ns == self._turned_ns:
             return                      # that /clock was taken at the previous turn
         self._turn = Future()
@@ -378,10 +522,17 @@ class Twin:
         self._turned_ns = self._clock_ns
 
     def _on_clock(self, msg: Clock) -> None:
-        """The twin's own /clock subscription: it ends a turn (:meth:`_sync_graph`)."""
+        """The twin's own /clock subscription: it ends a turn (:meth:`_sync_graph`); following,
+        it is the owner's time."""
         t_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
-        if self._turn is not None and t_ns >= self._clock_ns and not self._turn.done():
+        if self.follow:
+            self._owner_ns = max(self._owner_ns, t_ns)
+        elif self._turn is not None and t_ns >= self._clock_ns and not self._turn.done():
             self._turn.set_result(t_ns)
+
+    def _on_turn(self, _msg: Empty) -> None:
+        if self._turn is not None and not self._turn.done():
+            self._turn.set_result(True)
 
     def _warn_foreign_publishers(self) -> None:
         """Another graph on the same domain publishing the twin's topics cannot change the run
@@ -431,6 +582,17 @@ class Twin:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _absolute_namespace(namespace: str) -> str:
+    """'left' or '/left' -> '/left', checked as ROS checks a namespace (one line otherwise)."""
+    ns = '/' + namespace.strip('/')
+    try:
+        validate_namespace(ns)
+    except InvalidNamespaceException as exc:
+        raise TwinError(f'namespace {namespace!r}: {" ".join(str(exc).split())[:200]}; '
+                        'expected names of letters, digits and _ separated by /') from None
+    return ns
 
 
 def _scenario_label(spec: Any, scenario: Scenario) -> str:
