@@ -388,6 +388,19 @@ def test_the_launch_file_ends_with_an_essential_node_and_lists_the_registry():
     setup = (ROOT / 'setup.py').read_text()
     assert all(f"'{e} = servovalve_twin.entry:{e}'" in setup for e in execs)
     assert 'VALVE_MODEL_NAMES' in ast.unparse(tree)
+    # several actuators: every node but the clock in the launch's namespace; the clock (the one
+    # /clock owner) only when asked; the unit's parameters from the params_file argument
+    declared = {ast.literal_eval(c.args[0]) for c in ast.walk(tree) if isinstance(c, ast.Call)
+                and getattr(c.func, 'id', None) == 'DeclareLaunchArgument'}
+    assert {'namespace', 'params_file', 'clock', 'valve_model'} <= declared
+    for name, k in execs.items():
+        assert ('namespace' in k) == (name != 'clock'), name
+        if 'namespace' in k:
+            assert ast.unparse(k['namespace']) == 'namespace'
+    assert ast.unparse(execs['clock']['condition']) == "IfCondition(LaunchConfiguration('clock'))"
+    for name in ('ecu', 'plant', 'monitor'):
+        assert ast.unparse(execs[name]['parameters']).startswith('[params_file,'), name
+    assert "params_file = LaunchConfiguration('params_file')" in ast.unparse(tree)
 
 
 def test_progress_shows_on_a_terminal_only():
