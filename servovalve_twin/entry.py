@@ -1,24 +1,49 @@
 """The console scripts' entry points. Importing a node pulls in rclpy and numba -- seconds on a
 busy machine -- so each entry point imports its module here, where Ctrl-C during the import is
-one line and exit code 130 instead of a traceback."""
+one line and exit code 130 instead of a traceback.
+
+The ROS executables (nodes, ``twin``, ``player``, ``replay``) leave at once when their ``main``
+has returned: their bag is closed, their context shut down and their output flushed, and the
+interpreter's own teardown after numba, scipy and rclpy took 2-3 s on a loaded machine (a
+launch waits that long on SIGINT). A SIGINT or SIGTERM arriving by then is ignored: the node
+is already stopping, and a second Ctrl-C is not an error."""
 
 from __future__ import annotations
 
 import importlib
+import logging
+import os
+import signal
 import sys
 
 
-def _run(module: str, func: str = 'main') -> int:
+def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
     try:
         target = getattr(importlib.import_module(module), func)
     except KeyboardInterrupt:
         print('interrupted while starting', file=sys.stderr)
         return 130
-    return target()
+    code = target()
+    if not ros:
+        return code
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    _leave(int(code or 0))
+
+
+def _leave(code: int) -> None:
+    """Exit now: flush what was written, skip the interpreter's teardown."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):       # a closed pipe: nothing more to say
+            pass
+    os._exit(code)
 
 
 def cli() -> int:
-    return _run('servovalve_twin.cli')
+    return _run('servovalve_twin.cli', ros=False)
 
 
 def command_generator() -> int:

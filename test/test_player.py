@@ -219,3 +219,47 @@ def test_a_bag_type_name_never_imports_a_module_that_is_not_a_message_package(tm
                        timeout=120)
     assert r.returncode == 0, r.stderr
     assert not marker.exists() and 'Beautiful is better' not in r.stdout
+
+
+@pytest.mark.ros
+def test_the_player_executable_holds_its_options_as_parameters(ros_context, tmp_path):
+    """``ros2 param get /player rate`` answers, with an integer given for the double stored as
+    the double, arrays as string arrays (empty ones too), and no option changes mid-play."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+    from conftest import console_script
+    write_bag(tmp_path / 'b', storage='mcap', version=9)
+    proc = subprocess.Popen([console_script('player'), '--ros-args', '-p',
+                             f'bag:={tmp_path / "b"}', '-p', 'rate:=2', '-p',
+                             "topics:=['/value']", '-p', 'start_paused:=true'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    node = Node('asker', context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    client = AsyncParameterClient(node, '/player')
+    names = ['bag', 'rate', 'topics', 'exclude_topics', 'start_paused', 'clock', 'remap']
+    try:
+        assert client.wait_for_services(timeout_sec=120)
+        fut = client.get_parameters(names)
+        ex.spin_until_future_complete(fut, timeout_sec=60)
+        got = {n: Parameter.from_parameter_msg(
+            __import__('rcl_interfaces.msg', fromlist=['Parameter']).Parameter(name=n, value=v))
+            for n, v in zip(names, fut.result().values)}
+        assert got['bag'].value == str(tmp_path / 'b')
+        assert got['rate'].type_ == Parameter.Type.DOUBLE and got['rate'].value == 2.0
+        assert got['topics'].type_ == Parameter.Type.STRING_ARRAY
+        assert list(got['topics'].value) == ['/value']
+        assert got['exclude_topics'].type_ == Parameter.Type.STRING_ARRAY
+        assert list(got['exclude_topics'].value) == []
+        assert got['start_paused'].value is True and got['clock'].value == 0.0
+        for p in (Parameter('rate', value=4.0), Parameter('topics', value=['/fast'])):
+            fut = client.set_parameters([p])
+            ex.spin_until_future_complete(fut, timeout_sec=60)
+            assert not fut.result().results[0].successful, p.name
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        ex.shutdown()
+        node.destroy_node()
+    print(out, err[-800:])
+    assert proc.returncode == 0 and 'Traceback' not in err

@@ -14,9 +14,17 @@ Services (std_srvs/Trigger; rosbag2's names): ``~/pause``, ``~/resume``, ``~/tog
 ``~/play_next`` (publishes one message while paused; ``success`` false at the end of the bag),
 ``~/is_paused`` (``success`` is whether playback is paused).
 
-Parameters (read-only, the ``ros2 bag play`` option names): ``bag``, ``rate``, ``clock`` (Hz, 0 =
-off), ``topics``, ``exclude_topics`` (string arrays), ``loop``, ``delay``, ``start_offset``,
-``playback_duration`` (s; 0 = to the end), ``start_paused``, ``remap`` (``FROM:=TO`` strings).
+Parameters (the ``ros2 bag play`` option names, fixed once playing; ``ros2 param get /player
+rate`` reads them whether they came from ``-p`` or from :class:`PlayOptions`): ``bag``, ``rate``,
+``clock`` (Hz, 0 = off), ``topics``, ``exclude_topics`` (string arrays), ``loop``, ``delay``,
+``start_offset``, ``playback_duration`` (s; 0 = to the end), ``start_paused``, ``remap``
+(``FROM:=TO`` strings). An integer given for a double is stored as the double.
+
+rosbag2's player node offers its services with rosbag2_interfaces types (``Pause``, ``Resume``,
+``TogglePaused``, ``IsPaused``, ``PlayNext``, ``GetRate``, ``SetRate``, ``Burst``, ``Seek``,
+``Play``, ``Stop``). rosbag2_interfaces is a C++-built package that is not on PyPI, and a new
+service type needs an ament_cmake build, so this player offers the five above under rosbag2's
+names with std_srvs/Trigger; the rest are not offered.
 """
 
 from __future__ import annotations
@@ -27,7 +35,9 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
@@ -75,6 +85,22 @@ class PlayOptions:
                 raise TwinError(f'remap expects FROM:=TO, got {item!r}')
             out[_absolute(a)] = _absolute(b)
         return out
+
+
+#: the player's parameters: rosbag2's ``ros2 bag play`` options
+OPTION_DOCS = {
+    'bag': 'the bag played (directory or file)',
+    'rate': 'playback rate: bag seconds per wall second',
+    'clock': 'publish /clock from the bag time at this many Hz (0: off)',
+    'topics': 'only these topics (empty: every topic)',
+    'exclude_topics': 'not these topics',
+    'loop': 'play again from the start at the end',
+    'delay': 'wall seconds to wait before playing',
+    'start_offset': 'start this many seconds into the bag',
+    'playback_duration': 'play this many bag seconds (0: to the end)',
+    'start_paused': 'start paused (resume with ~/resume)',
+    'remap': 'FROM:=TO topic remappings',
+}
 
 
 def _absolute(topic: str) -> str:
@@ -125,6 +151,7 @@ class Player(Node):
         options.check()
         self.bag = bag
         self.options = options
+        self._declare_options(bag, options)
         remaps = options.remaps()
         self.warnings: list[str] = []
         self.pubs = {}
@@ -166,6 +193,31 @@ class Player(Node):
                          else t0 + int(round(options.playback_duration * 1e9)))
         self.bag_now_ns = t0
         self._restart()
+
+    def _declare_options(self, bag: AnyBag, options: PlayOptions) -> None:
+        """The options as the node's parameters, with the values in force (a ``-p`` override
+        was read into ``options`` already, converted; it is not applied again)."""
+        values = {'bag': str(bag.path), **dataclasses.asdict(options)}
+        for name, value in values.items():
+            desc = ParameterDescriptor(description=OPTION_DOCS[name])
+            if isinstance(value, tuple):
+                # rclpy types an empty list as a byte array: declare the type, then the value
+                self.declare_parameter(name, Parameter.Type.STRING_ARRAY, desc,
+                                       ignore_override=True)
+                self.set_parameters([Parameter(name, Parameter.Type.STRING_ARRAY,
+                                               list(value))])
+            else:
+                desc.read_only = True
+                self.declare_parameter(name, value, desc, ignore_override=True)
+        self.add_on_set_parameters_callback(self._refuse_option_changes)
+
+    def _refuse_option_changes(self, params: list[Parameter]) -> SetParametersResult:
+        fixed = [p.name for p in params if p.name in OPTION_DOCS]
+        if fixed:
+            return SetParametersResult(
+                successful=False, reason=f'{fixed[0]} is fixed while playing: start the '
+                'player again with the new value')
+        return SetParametersResult(successful=True)
 
     # -- services -------------------------------------------------------------------------
     def _srv_pause(self, _req, resp):
