@@ -169,6 +169,32 @@ def test_twin_executable(tmp_path):
     assert r.returncode == 0
 
 
+def test_twin_executable_stops_cleanly_on_sigint(tmp_path):
+    """Ctrl-C (or launch's SIGINT) ends ``twin`` at a tick with exit code 0 -- launch logs no
+    'process has died' -- and a finished bag; a second SIGINT during the stop changes
+    nothing."""
+    scenario = tmp_path / 'long.yaml'
+    scenario.write_text('duration: 600.0\ncom: [[0.0, 0.02]]\n')
+    proc = subprocess.Popen([console_script('twin'), '--ros-args', '-p', 'valve_model:=C2',
+                             '-p', f'scenario:={scenario}', '-p', f'bag:={tmp_path / "b"}'],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert 'twin: running C2 on long' in proc.stdout.readline()
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.02)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    print(out, err[-800:])
+    assert proc.returncode == 0 and 'twin: interrupted' in out and 'Traceback' not in err
+    from servovalve_twin.bag.reader import read_bag
+    assert 0.0 < read_bag(tmp_path / 'b').signals['t'][-1] < 600.0
+
+
 def test_multi_process_graph_shares_simulated_time(ros_context, tmp_path):
     """`clock` drives simulated time for nodes in other processes (use_sim_time:=true): the
     command pulses to 0.03 m for 0.45 s of scenario time every 1.5 s, so whenever discovery

@@ -396,7 +396,8 @@ def main(args: Sequence[str] | None = None) -> int:
                 v = values[f.name]
                 opts[f.name] = tuple(v) if isinstance(f.default, tuple) else type(f.default)(v)
         result = play(values['bag'], PlayOptions(**opts), context=context,
-                      stop=lambda: bool(stop))
+                      stop=lambda: bool(stop), on_ready=lambda player: print(
+                          f'player: playing {values["bag"]}', flush=True))
     except (TwinError, BagError) as exc:
         print(f'player: error: {exc}', file=sys.stderr)
         return 2

@@ -63,7 +63,11 @@ def main(args: Sequence[str] | None = None) -> int:
         clock_period = _seconds(values, 'clock_period', 1e-2)
         if record and not bag:
             bag = default_bag_dir(load_scenario(scenario).name, valve_model)
-        result = run_twin(valve_model, scenario, values, control_period=period,
+        # one line once the first tick has run: a supervisor (and bench_sigint) knows it is up
+        started = lambda k, twin: k == 0 and print(   # noqa: E731
+            f'twin: running {valve_model} on {twin.scenario.name}'
+            + (f' in {twin.namespace}' if twin.namespace else ''), flush=True)
+        result = run_twin(valve_model, scenario, values, control_period=period, on_tick=started,
                           bag=bag if record else None, context=context, keep_values=False,
                           monitor=monitor, overwrite=overwrite,
                           foxglove=None if foxglove is None else int(foxglove),
@@ -79,7 +83,9 @@ def main(args: Sequence[str] | None = None) -> int:
           f'{result.wall_s:.2f} s (real-time factor '
           f'{result.simulated_s / max(result.wall_s, 1e-9):.1f})'
           + (f'; bag {result.bag}' if result.bag else ''))
-    return 130 if result.interrupted else 0
+    # a stop by SIGINT/SIGTERM is a clean end for a ROS executable (its bag is complete up to
+    # there): 0, so that launch does not report the process as died
+    return 0
 
 
 if __name__ == '__main__':
