@@ -17,11 +17,22 @@ The model (discrete in time, vectorized over particles):
   (the valve's response at the state, with the supply of the last step: an output kept as a
   state, since the valve is algebraic) and one *degradation state* per fault of
   ``degradation`` -- its severity in the catalog's units (:data:`~.physics.faults.FAULTS`),
-  held between steps (a slowly varying parameter), moved by ``growth`` [severity/s] and by
-  progpy's process noise, limited to the catalog's bounds;
+  held between steps (a slowly varying parameter), moved by its growth rate and by progpy's
+  process noise, limited to the catalog's bounds; and one *growth state* per fault,
+  ``<fault>_growth`` [severity/s] -- the wear rate, carried as a state the way progpy's own
+  wear models carry theirs (PneumaticValve's ``wb``, ``wi``, ...), so that a filter estimates
+  it and a prediction extrapolates it; its initial value is the parameter ``growth``;
 - **outputs** ``xj``, ``dxj``, ``p12``;
-- **events** ``<fault>_alarm``: the degradation reaching the catalog's alarm severity
-  (event state 1 when healthy, 0 at the alarm).
+- **events** ``<fault>_alarm``: the degradation reaching its threshold, the parameter
+  ``thresholds`` (default the catalog's alarm severity; settable, ``m.parameters['thresholds']
+  ['leakage_growth'] = 12.0``); event state 1 when healthy, 0 at the threshold.
+
+Time: the model steps whole control periods. ``simulate_to_threshold`` (and so
+``MonteCarlo.predict``) steps at the control period unless given a ``dt`` that is a whole number
+of them, and refuses any other ``dt`` (progpy's default, ``('auto', 1.0)``, would check the
+events once per second: an event at 0.025 s reported at 1.0 s). Any ``t0`` works (progpy probes
+``next_state`` once with ``dt - t0`` to learn its return type; that probe is answered without a
+step).
 
 ``next_state(x, u, dt)`` advances ``dt`` -- a whole number of control periods -- through the
 same compiled tick as the ROS plant (:func:`~.physics.plant.run_tick`): each period the ECU
@@ -70,7 +81,8 @@ class EhaModel(PrognosticsModel):
     :param control_period: the ECU's sampling period [s], a multiple of DT
     :param scaled: carry the states divided by :data:`STATE_SCALE` (for a Kalman filter)
     :param kwargs: progpy parameters (``process_noise``, ``measurement_noise``, ...) and
-        ``growth`` = {fault: severity per second}, ``x0`` = {fault: initial severity}
+        ``growth`` = {fault: initial growth rate, severity per second}, ``x0`` = {fault:
+        initial severity}, ``thresholds`` = {fault: severity of its event}
     """
 
     is_vectorized = True
@@ -90,19 +102,23 @@ class EhaModel(PrognosticsModel):
         self.control_period = float(control_period)
         self.n_sub = steps_per(control_period, self.nominal, 'the control period')
         ports = ('p1', 'p2') if self.valve.has_ports else ()
-        self.states = list(PLANT_STATE) + ['p12_warm', *ports, 'p12', *self.degradation]
+        self.states = list(PLANT_STATE) + ['p12_warm', *ports, 'p12', *self.degradation,
+                                           *(f'{f}_growth' for f in self.degradation)]
         self.events = [f'{f}_alarm' for f in self.degradation]
         self._limits = [(FAULTS[f].lo, FAULTS[f].hi) for f in self.degradation]
         self._scale = np.array([STATE_SCALE.get(k, 1.0) if scaled else 1.0
                                 for k in self.states])[:, None]
         self._i_deg = [self.states.index(f) for f in self.degradation]
+        self._i_rate = [self.states.index(f'{f}_growth') for f in self.degradation]
         self._i_ports = [self.states.index(p) for p in ports]
         self._i_p12 = self.states.index('p12')
         self._i_warm = self.states.index('p12_warm')
         self._kernels: dict[tuple[float, ...], tuple[Any, np.ndarray]] = {}
+        self._probe = False             # inside simulate_to_threshold, before its first step
         growth = kwargs.pop('growth', {})
         x0 = kwargs.pop('x0', {})
-        for what, d in (('growth', growth), ('x0', x0)):
+        thresholds = kwargs.pop('thresholds', {})
+        for what, d in (('growth', growth), ('x0', x0), ('thresholds', thresholds)):
             extra = set(d) - set(self.degradation)
             if extra:
                 raise ParameterError(f'{what} names {sorted(extra)}, which are not degradation '
@@ -111,6 +127,10 @@ class EhaModel(PrognosticsModel):
         super().__init__(**kwargs)
         self.parameters['growth'] = {f: float(growth.get(f, 0.0)) for f in self.degradation}
         self.parameters['x0'] = {f: float(x0.get(f, FAULTS[f].healthy)) for f in self.degradation}
+        self.parameters['thresholds'] = {f: float(thresholds.get(f, FAULTS[f].demo))
+                                         for f in self.degradation}
+        for f in self.degradation:
+            self._threshold(f)
 
     # -- the physics -----------------------------------------------------------------------
     def _kernel(self, severities: tuple[float, ...]):
@@ -124,11 +144,24 @@ class EhaModel(PrognosticsModel):
             k = self._kernels[severities] = (kern, kernel_as_array(kern))
         return k
 
+    def _threshold(self, fault: str) -> float:
+        """The event threshold of ``fault``, checked: beyond the healthy severity on the
+        alarm's side (a leak grows, a gain falls), within the catalog's bounds."""
+        spec = FAULTS[fault]
+        v = self.parameters['thresholds'][fault]
+        side = (v - spec.healthy) * (spec.demo - spec.healthy)
+        if not (math.isfinite(v) and side > 0 and spec.lo <= v <= spec.hi):
+            raise ParameterError(
+                f'thresholds[{fault!r}] = {v!r}: expected a severity beyond the healthy '
+                f'{spec.healthy:g} towards the alarm {spec.demo:g}, within [{spec.lo:g}, '
+                f'{spec.hi:g}]')
+        return v
+
     def _advance(self, col: np.ndarray, com: float, fr: float, psr: float, periods: int,
-                 growth_dt: np.ndarray) -> np.ndarray:
+                 dt: float) -> np.ndarray:
         """One particle's state column ``periods`` control periods on; returns the new one."""
-        sev = tuple(min(max(float(col[i]) + g, lo), hi)
-                    for i, g, (lo, hi) in zip(self._i_deg, growth_dt, self._limits))
+        sev = tuple(min(max(float(col[i]) + float(col[j]) * dt, lo), hi)
+                    for i, j, (lo, hi) in zip(self._i_deg, self._i_rate, self._limits))
         kern, arr = self._kernel(sev)
         s = col[:S_SIZE].copy()
         vs = self.valve.initial_state(self.nominal)
@@ -145,6 +178,7 @@ class EhaModel(PrognosticsModel):
         self._put_valve(new, vs, arr, fr, psr)
         for i, v in zip(self._i_deg, sev):
             new[i] = v
+        new[self._i_rate] = col[self._i_rate]
         return new
 
     def _put_valve(self, col: np.ndarray, vs: np.ndarray, arr: np.ndarray, fr: float,
@@ -161,11 +195,10 @@ class EhaModel(PrognosticsModel):
         """``dt`` in control periods. progpy's estimators add their steps up in floating
         point, so a whole number is met to 1e-6 of a period, and what is left of a window
         (1e-17 s) is zero periods: no step."""
-        n = dt / self.control_period
-        if not (math.isfinite(n) and n > -1e-6 and abs(n - round(n)) < 1e-6):
+        if not self._is_whole(dt):
             raise ParameterError(f'dt = {dt} s must be a whole number of control periods '
                                  f'({self.control_period} s)')
-        return int(round(n))
+        return int(round(dt / self.control_period))
 
     # -- progpy's interface ----------------------------------------------------------------
     def initialize(self, u=None, z=None):
@@ -173,24 +206,51 @@ class EhaModel(PrognosticsModel):
         valve's response at rest to ``u``'s supply (the nominal PSRN without ``u``)."""
         col = np.zeros(len(self.states))
         sev = tuple(self.parameters['x0'][f] for f in self.degradation)
-        for i, v in zip(self._i_deg, sev):
+        for i, j, v, f in zip(self._i_deg, self._i_rate, sev, self.degradation):
             col[i] = v
+            col[j] = self.parameters['growth'][f]
         psr = float(np.ravel(u['psr'])[0]) if u is not None else self.nominal.PSRN
         self._put_valve(col, self.valve.initial_state(self.nominal), self._kernel(sev)[1], 0.0,
                         psr)
         return self.StateContainer(col.reshape(-1, 1) / self._scale)
 
     def next_state(self, x, u, dt: float):
+        if self._probe:
+            # simulate_to_threshold's first call only learns the return type, with dt - t0
+            # (negative for t0 > dt): answered without a step, as its result is discarded
+            self._probe = False
+            if not self._is_whole(dt):
+                return self.StateContainer(np.array(x.matrix, dtype=float))
         periods = self._periods(dt)
         if periods == 0:
             return self.StateContainer(np.array(x.matrix, dtype=float))
         com, fr, psr = (float(np.ravel(u[k])[0]) for k in ('com', 'fr', 'psr'))
-        growth_dt = np.array([self.parameters['growth'][f] * dt for f in self.degradation])
         X = np.asarray(x.matrix, dtype=float) * self._scale
         new = np.empty_like(X)
         for j in range(X.shape[1]):
-            new[:, j] = self._advance(X[:, j], com, fr, psr, periods, growth_dt)
+            new[:, j] = self._advance(X[:, j], com, fr, psr, periods, dt)
         return self.StateContainer(new / self._scale)
+
+    def simulate_to_threshold(self, future_loading_eqn=None, *args, **kwargs):
+        """progpy's, stepping whole control periods: ``dt`` defaults to the control period,
+        and one that is not a whole number of them is refused (never a silently coarse or
+        misaligned event time)."""
+        dt = kwargs.get('dt', self.control_period)
+        if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (
+                dt > 0 and self._is_whole(dt)):
+            raise ParameterError(
+                f'dt = {dt!r}: EhaModel steps whole control periods; give dt as a multiple '
+                f'of {self.control_period} s (default: one control period)')
+        kwargs['dt'] = float(dt)
+        self._probe = True
+        try:
+            return super().simulate_to_threshold(future_loading_eqn, *args, **kwargs)
+        finally:
+            self._probe = False
+
+    def _is_whole(self, dt: float) -> bool:
+        n = dt / self.control_period
+        return math.isfinite(n) and n > -1e-6 and abs(n - round(n)) < 1e-6
 
     def apply_limits(self, x):
         """Each degradation within the catalog's bounds, silently: progpy's own limits warn at
@@ -207,9 +267,9 @@ class EhaModel(PrognosticsModel):
                                        self._i_p12]])
 
     def _progress(self, x) -> dict[str, np.ndarray]:
-        """Each degradation's way from healthy (0) to its alarm severity (1)."""
+        """Each degradation's way from healthy (0) to its threshold (1)."""
         return {f: (np.asarray(x[f], dtype=float) - FAULTS[f].healthy)
-                / (FAULTS[f].demo - FAULTS[f].healthy) for f in self.degradation}
+                / (self._threshold(f) - FAULTS[f].healthy) for f in self.degradation}
 
     def event_state(self, x) -> dict:
         return {f'{f}_alarm': np.clip(1.0 - p, 0.0, 1.0) for f, p in self._progress(x).items()}

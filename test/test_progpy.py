@@ -117,10 +117,11 @@ def test_scaled_states_are_the_same_run_and_carry_a_kalman_filter():
     z = {k: r[k] + rng.normal(0.0, sd, len(r[k])) for k, sd in noise.items()}
     m = EhaModel(scaled=True, x0={'leakage_growth': 2.0})
     mean = np.asarray(m.initialize(u={'psr': 2e7}).matrix)[:, 0]
+    i = m.states.index('leakage_growth')
     cov = np.diag([1e-4] * len(mean))
-    cov[-1, -1] = 9.0
+    cov[i, i] = 9.0
     q = np.diag([1e-6] * len(mean))
-    q[-1, -1] = 0.1
+    q[i, i] = 0.1
     ukf = UnscentedKalmanFilter(m, MultivariateNormalDist(m.states, mean, cov), Q=q,
                                 R=np.diag([sd ** 2 for sd in noise.values()]))
     est = {}
@@ -148,11 +149,86 @@ def test_monte_carlo_time_of_event_against_its_closed_form():
     assert toe == pytest.approx([0.1] * 3, abs=1.5e-3)
 
 
+@pytest.mark.parametrize('t0', [0.0, 0.8, 1234.5])
+def test_monte_carlo_from_any_t0_with_growth_states_and_a_set_threshold(t0):
+    """progpy's MonteCarlo as its tutorials call it, from any t0: a leak at 2 x whose growth
+    *state* is 40 x/s reaches a threshold set to 6 x after (6 - 2) / 40 = 0.1 s, so the event
+    is at t0 + 0.1 to one control period -- with progpy's default dt too (the model steps its
+    control period; progpy's ('auto', 1.0) would have said t0 + 1.0). A growth read from the
+    parameters instead of the state, a threshold ignored (the catalog's 10 x: 0.2 s), or
+    t0's probe stepped as a time step would fail."""
+    m = EhaModel(valve_model='SQ', degradation=['leakage_growth'], x0={'leakage_growth': 2.0},
+                 growth={'leakage_growth': 1.0})
+    m.parameters['thresholds']['leakage_growth'] = 6.0
+    x0 = m.initialize()
+    x0['leakage_growth_growth'] = 40.0         # the state, as a filter would have estimated it
+    load = lambda t, x=None: m.InputContainer({'com': 0.02, 'fr': 0.0,  # noqa: E731
+                                               'psr': 2.0e7})
+    for kw in ({'dt': 1e-3}, {}):
+        res = MonteCarlo(m).predict(UnweightedSamples([x0] * 2), load, t0=t0, horizon=1.0,
+                                    n_samples=2, **kw)
+        toe = res.time_of_event.key('leakage_growth_alarm')
+        print(t0, kw, toe)
+        assert toe == pytest.approx([t0 + 0.1] * 2, abs=1.5e-3)
+    with pytest.raises(ParameterError, match='whole control periods'):
+        m.simulate_to_threshold(load, dt=1.5e-3)
+    with pytest.raises(ParameterError, match='whole control periods'):
+        m.simulate_to_threshold(load, dt=('auto', 1.0))
+
+
+def test_a_particle_filter_estimates_the_growth_rate_and_predicts_the_event():
+    """progpy's tutorial loop -- ParticleFilter.estimate on noisy outputs, then
+    MonteCarlo.predict from the filter's state -- on an SQ unit whose leak grows at 30 x/s
+    from 2 x (threshold 10 x, reached at 0.267 s): from 0.15 s of data the growth-rate state is
+    within 25 % and the predicted event within 0.04 s of the truth."""
+    from progpy.state_estimators import ParticleFilter as PF
+    raw = {'duration': 0.15, 'com': [[0.0, 0.02], [0.05, -0.01], [0.1, 0.02]],
+           'fr': [[0.0, 0.0], [0.05, 3000.0]]}
+    truth = EhaModel(valve_model='SQ', degradation=['leakage_growth'],
+                     x0={'leakage_growth': 2.0}, growth={'leakage_growth': 30.0})
+    sc = load_scenario(raw)
+    t = np.arange(0, 151) * 1e-3
+    com, fr, psr = sc.inputs((t * 1e9).round().astype(np.int64))
+    x = truth.initialize(u={'psr': psr[0]})
+    rng = np.random.default_rng(3)
+    noise = {'xj': 1e-5, 'dxj': 1e-3, 'p12': 5e4}
+    np.random.seed(0)                       # progpy's process noise and filterpy's resampling
+    m = EhaModel(valve_model='SQ', degradation=['leakage_growth'],
+                 process_noise={'leakage_growth': 10.0, 'leakage_growth_growth': 400.0})
+    x0 = m.initialize(u={'psr': psr[0]})
+    samples = []
+    for j in range(300):
+        s = dict(zip(m.states, np.asarray(x0.matrix)[:, 0]))
+        s['leakage_growth'] = rng.uniform(1.0, 4.0)
+        s['leakage_growth_growth'] = rng.uniform(0.0, 80.0)
+        samples.append(s)
+    pf = PF(m, UnweightedSamples(samples), num_particles=300,
+            measurement_noise={'xj': 5e-5, 'dxj': 3e-3, 'p12': 1e5})
+    for i in range(150):            # the unit flies; every 5 ms the filter takes a measurement
+        u = m.InputContainer({'com': com[i], 'fr': fr[i], 'psr': psr[i]})
+        x = truth.next_state(x, u, 1e-3)
+        if (i + 1) % 5 == 0:        # (the inputs change only at multiples of 5 ms)
+            z = {k: float(np.asarray(truth.output(x)[k]).ravel()[0]) + rng.normal(0, sd)
+                 for k, sd in noise.items()}
+            pf.estimate(t[i + 1], u, z, dt=1e-3)
+    rate = pf.x.mean['leakage_growth_growth']
+    print('growth rate', rate)
+    assert abs(rate / 30.0 - 1.0) < 0.25
+    load = lambda tt, xx=None: m.InputContainer({'com': 0.02, 'fr': 0.0,  # noqa: E731
+                                                 'psr': 2.0e7})
+    res = MonteCarlo(m).predict(pf.x, load, t0=0.15, horizon=1.0, n_samples=50)
+    toe = np.median(res.time_of_event.key('leakage_growth_alarm'))
+    print('event', toe, 'truth', 8.0 / 30.0)
+    assert abs(toe - 8.0 / 30.0) < 0.04
+
+
 def test_bad_model_arguments_are_named():
     with pytest.raises(ParameterError, match='unknown fault'):
         EhaModel(degradation=['leak'])
     with pytest.raises(ParameterError, match='not degradation states'):
         EhaModel(degradation=['leakage_growth'], growth={'null_bias': 1.0})
+    with pytest.raises(ParameterError, match='beyond the healthy'):
+        EhaModel(degradation=['leakage_growth'], thresholds={'leakage_growth': 0.5})
     m = EhaModel()
     x = m.initialize()
     with pytest.raises(ParameterError, match='whole number of control periods'):
