@@ -1,6 +1,8 @@
 """servovalve-twin fmu: the FMU, run by FMPy, gives simulate's outputs; parameters
 set through the FMU reach the physics; bad input is one line and exit 2, nothing written."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
@@ -89,3 +91,93 @@ def test_the_fmu_refuses_steps_and_periods_it_cannot_take(fmus):
                      start_values={'control_period': 1.5e-5})
     with pytest.raises(FMICallException, match='DoStep'):
         simulate_fmu(fmu, stop_time=0.01, step_size=1.5e-3)
+
+
+#: what the importer's Python runs: validate, then simulate on the inputs in inputs.npz
+IMPORTER = '''
+import json, sys
+import numpy as np
+from fmpy import simulate_fmu
+from fmpy.validation import validate_fmu
+fmu, inputs, out = sys.argv[1:4]
+log = []
+problems = validate_fmu(fmu)
+x = np.load(inputs)
+rows = np.array(list(zip(x['t'], x['com'], x['fr'], x['psr'])),
+                dtype=[('time', float), ('com', float), ('fr', float), ('psr', float)])
+try:
+    res = simulate_fmu(fmu, start_time=0.0, stop_time=float(x['t'][-1]), step_size=1e-3,
+                       output_interval=1e-3, input=rows, output=['xj', 'dxj', 'p12', 'xs'],
+                       logger=lambda *a: log.append(a[-1].decode(errors='replace')
+                                                    if isinstance(a[-1], bytes) else str(a[-1])),
+                       debug_logging=True)
+    np.savez(out, **{k: res[k] for k in res.dtype.names})
+    error = None
+except Exception as exc:
+    error = str(exc)
+print(json.dumps(dict(problems=problems, error=error, log=log[-20:])))
+'''
+
+
+def _importer(fmu, r, tmp_path, extra_path=None):
+    """Run the FMU with FMPy in the FMU venv (scripts/fmu-venv): a Python that has FMPy and
+    the FMU's declared packages, not servovalve_twin. ``extra_path`` goes first on its path."""
+    import json
+    import os
+    import subprocess
+    from conftest import ROOT
+    py = Path(os.environ.get('FMU_VENV', ROOT / '.venv-fmu')) / 'bin' / 'python'
+    if not py.exists():
+        pytest.fail(f'{py} is missing: run scripts/fmu-venv (scripts/test does)')
+    env = {k: v for k, v in os.environ.items() if k not in ('PYTHONPATH', 'VIRTUAL_ENV')}
+    if extra_path:
+        env['PYTHONPATH'] = str(extra_path)
+    np.savez(tmp_path / 'inputs.npz', t=r['t'], com=r['com'], fr=r['fr'], psr=r['psr'])
+    probe = subprocess.run([str(py), '-c', 'import servovalve_twin'], cwd=tmp_path, env=env,
+                           capture_output=True, text=True)
+    assert probe.returncode != 0, 'the FMU venv must not have servovalve_twin'
+    (tmp_path / 'importer.py').write_text(IMPORTER)
+    out = subprocess.run([str(py), str(tmp_path / 'importer.py'), str(fmu),
+                          str(tmp_path / 'inputs.npz'), str(tmp_path / 'out.npz')],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return json.loads(out.stdout.strip().splitlines()[-1]), tmp_path / 'out.npz'
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('model', ['SQ', 'HD'])
+def test_the_fmu_runs_outside_the_package_with_its_declared_packages(fmus, model, tmp_path):
+    """In a Python with only FMPy and the packages the FMU declares (its requirements.txt),
+    FMPy's validate_fmu finds nothing (InitialUnknowns declared) and the FMU gives simulate's
+    run bit for bit: it carries the physics it needs."""
+    import zipfile
+    with zipfile.ZipFile(fmus / f'{model}.fmu') as z:
+        req = z.read('resources/requirements.txt').decode().split()
+    from servovalve_twin.fmu import REQUIRES
+    assert [line.split('>=')[0] for line in req] == list(REQUIRES)
+    from conftest import ROOT
+    script = (ROOT / 'scripts' / 'fmu-venv').read_text()
+    assert f'FMU_REQUIRES="{" ".join(REQUIRES)}"' in script     # the venv has just those
+    r = simulate(model, PAPER, ecu_period=1e-3)
+    result, out = _importer(fmus / f'{model}.fmu', r, tmp_path)
+    assert result['problems'] == [] and result['error'] is None, result
+    res = np.load(out)
+    for k in ('xs', 'xj', 'dxj'):
+        assert np.array_equal(res[k], r[k]), k
+    held = np.concatenate([[True], r['psr'][1:] == r['psr'][:-1]])
+    assert np.array_equal(res['p12'][held], r['p12'][held])
+
+
+@pytest.mark.slow
+def test_a_missing_package_is_named_in_the_fmu_log(fmus, tmp_path):
+    """Without numba (hidden here by a module that refuses to import) the instantiation fails
+    and the FMU's log names the packages and how to install them."""
+    hide = tmp_path / 'hide'
+    hide.mkdir()
+    (hide / 'numba.py').write_text("raise ImportError(\"No module named 'numba'\")\n")
+    r = simulate('SQ', {'duration': 0.01, 'com': [[0.0, 0.02]]}, ecu_period=1e-3)
+    result, _ = _importer(fmus / 'SQ.fmu', r, tmp_path, extra_path=hide)
+    assert result['error'] is not None
+    text = '\n'.join(result['log'])
+    print(text)
+    assert 'needs the Python packages numpy and numba' in text and 'pythonfmu deploy' in text

@@ -1,5 +1,9 @@
 """``servovalve-twin fmu``: an FMI 2.0 co-simulation FMU of the EHA, built with pythonfmu from
-:mod:`.slave` (the model) and a resource naming the valve model and control period."""
+:mod:`.slave` (the model), a resource naming the valve model and control period, and the
+physics it runs: the FMU carries its own copy of ``servovalve_twin.physics`` (and the two small
+modules it imports), so the importing tool's Python needs only the packages listed in
+:data:`REQUIRES` -- written into the FMU as ``resources/requirements.txt`` (``pythonfmu deploy
+-f EHA.fmu`` installs them) and into its description. pythonfmu embeds itself."""
 
 from __future__ import annotations
 
@@ -15,6 +19,35 @@ from ..physics.valves import get_valve_model
 
 #: the module name the slave has inside the FMU (pythonfmu imports it by this name)
 SLAVE_MODULE = 'servovalve_twin_eha'
+#: what the importing tool's Python must have (the physics is numpy and numba-compiled loops)
+REQUIRES = ('numpy', 'numba')
+#: the package files the slave's physics imports (physics/ whole; checked by a test)
+CARRIED = ('__init__.py', 'errors.py', 'jitcache.py', 'physics')
+
+
+def _requirements() -> str:
+    """``resources/requirements.txt``: each required package at least at the version this FMU
+    was built and tested with."""
+    from importlib.metadata import version
+    lines = []
+    for name in REQUIRES:
+        major, minor = version(name).split('.')[:2]
+        lines.append(f'{name}>={major}.{minor}')
+    return '\n'.join(lines) + '\n'
+
+
+def _carry_package(dest: Path) -> Path:
+    """A copy of the package's physics (sources only) at ``dest/servovalve_twin``."""
+    src = Path(__file__).resolve().parents[1]
+    pkg = dest / 'servovalve_twin'
+    pkg.mkdir()
+    for name in CARRIED:
+        if (src / name).is_dir():
+            shutil.copytree(src / name, pkg / name,
+                            ignore=shutil.ignore_patterns('__pycache__', '*.pyc'))
+        else:
+            shutil.copyfile(src / name, pkg / name)
+    return pkg
 
 
 def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3) -> Path:
@@ -38,10 +71,14 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
         cfg = tmp / CONFIG
         cfg.write_text(json.dumps(dict(valve_model=model.name,
                                        control_period=float(control_period))))
+        req = tmp / 'requirements.txt'
+        req.write_text(_requirements())
+        carried = _carry_package(tmp)
         # built beside the target, then moved into place: a failed build leaves no file
-        built = FmuBuilder.build_FMU(script, dest=tmp / out.name, project_files=[cfg])
+        built = FmuBuilder.build_FMU(script, dest=tmp / out.name,
+                                     project_files=[cfg, req, carried])
         shutil.move(str(built), str(out))
     return out
 
 
-__all__ = ['build_fmu', 'SLAVE_MODULE']
+__all__ = ['build_fmu', 'SLAVE_MODULE', 'REQUIRES']

@@ -1,9 +1,11 @@
 """The FMU's model: an FMI 2.0 co-simulation slave (pythonfmu) of the EHA.
 
 ``servovalve-twin fmu`` packs this file into the FMU with ``eha_fmu.json`` (the valve model and
-control period it was built for) as a resource. It runs in the importing tool's Python, which
-must have ``servovalve_twin`` installed (pythonfmu FMUs need a Python to execute: the FMU says
-so, ``needsExecutionTool``).
+control period it was built for), ``requirements.txt`` and a copy of the package's physics as
+resources. It runs in the importing tool's Python (pythonfmu FMUs need a Python to execute: the
+FMU says so, ``needsExecutionTool``), which must have numpy and numba (``requirements.txt``); a
+missing one is one message in the FMU's log naming what to install. The first instance in a
+process compiles the physics (numba; seconds), as the FMU is unpacked afresh by each run.
 
 Variables: inputs ``com`` [m], ``fr`` [N], ``psr`` [Pa] -- *discrete*, held over a
 communication step as the twin holds them over a control period (an importer must not
@@ -15,8 +17,18 @@ whole number of control periods of the ROS plant's compiled tick
 
 import json
 from pathlib import Path
+from xml.etree.ElementTree import SubElement
 
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+
+try:
+    import numpy  # noqa: F401
+    import numba  # noqa: F401
+except ImportError as exc:   # the importer's Python lacks what the FMU declares it needs
+    raise ImportError(
+        f'the EHA FMU needs the Python packages numpy and numba in the Python that runs it '
+        f'({exc}); install them (pip install numpy numba), or run `pythonfmu deploy -f '
+        f'<this>.fmu`, which installs resources/requirements.txt') from None
 
 from servovalve_twin.errors import TwinError
 from servovalve_twin.physics.params import DEFAULTS, PARAM_FIELDS
@@ -58,6 +70,18 @@ class EhaFmu(Fmi2Slave):
                 description=f'{meta["doc"]} [{meta["unit"]}]',
                 getter=lambda n=n: self._params[n],
                 setter=lambda v, n=n: self._params.__setitem__(n, v)))
+
+    def to_xml(self, model_options=None):
+        """pythonfmu's description, with the outputs also listed as InitialUnknowns: they are
+        calculated at initialisation (FMI 2.0 section 2.2.8; FMPy's validate_fmu asks)."""
+        root = super().to_xml(model_options or {})
+        structure = root.find('ModelStructure')
+        outputs = structure.find('Outputs')
+        if outputs is not None and structure.find('InitialUnknowns') is None:
+            initial = SubElement(structure, 'InitialUnknowns')
+            for unknown in outputs:
+                SubElement(initial, 'Unknown', attrib=dict(index=unknown.get('index')))
+        return root
 
     def exit_initialization_mode(self):
         try:
