@@ -1,6 +1,7 @@
 """The console scripts' entry points. Importing a node pulls in rclpy and numba -- seconds on a
 busy machine -- so each entry point imports its module here, where Ctrl-C during the import is
-one line and exit code 130 instead of a traceback.
+one line instead of a traceback, and exit code 130 for ``servovalve-twin``, 0 for a ROS
+executable (a stop requested before it started is a clean stop).
 
 The ROS executables (nodes, ``twin``, ``player``, ``replay``) leave at once when their ``main``
 has returned: their bag is closed, their context shut down and their output flushed, and the
@@ -22,7 +23,9 @@ def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
         target = getattr(importlib.import_module(module), func)
     except KeyboardInterrupt:
         print('interrupted while starting', file=sys.stderr)
-        return 130
+        # a ROS executable asked to stop before it started has stopped cleanly (launch sends
+        # SIGINT to every process when one ends: no 'process has died' for this one)
+        return 0 if ros else 130
     code = target()
     if not ros:
         return code

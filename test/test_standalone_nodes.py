@@ -146,12 +146,16 @@ def test_replay_executable(tmp_path):
 def test_twin_executable(tmp_path):
     r = subprocess.run([console_script('twin'), '--ros-args', '-p', 'valve_model:=C3',
                         '-p', f'bag:={tmp_path / "t"}', '-p', 'scenario:=defaults',
-                        '-p', 'CLk:=3.0e-13'], capture_output=True, text=True, timeout=120)
+                        '-p', 'CLk:=3.0e-13', '-r', '__ns:=/left'],
+                       capture_output=True, text=True, timeout=120)
     print(r.stdout, r.stderr[-500:])
     assert r.returncode == 0 and 'done' in r.stdout
     from servovalve_twin.bag.reader import read_bag
     run = read_bag(tmp_path / 't')
     assert run.valve_model == 'C3' and run.params()['CLk'] == 3e-13
+    # the ROS way to namespace it: every topic under /left, /clock global, recorded so
+    assert run.provenance.namespace == '/left' and '/left/xj' in run.topics
+    assert '/clock' in run.topics and len(run.signals['xj']) == 1001
     # recording is on by default, into bags/<scenario>_<model>_<UTC time>: a rerun never
     # collides with an earlier bag; an explicit existing bag is replaced only with overwrite
     cmd = [console_script('twin'), '--ros-args', '-p', 'valve_model:=C1', '-p',

@@ -479,6 +479,9 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
         print(f'error: {" ".join(str(exc).split(", at ")[0].split())}', file=sys.stderr)
         return 2
     node = executor = None
+    if stop:            # asked to stop while rclpy started: do not build (and compile) a node
+        rclpy.try_shutdown()
+        return 0
     try:
         node = factory()
         _refuse_unknown_parameters(node)
