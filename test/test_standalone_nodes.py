@@ -173,6 +173,32 @@ def test_twin_executable(tmp_path):
     assert r.returncode == 0
 
 
+def test_twin_executable_and_run_take_the_same_options(tmp_path):
+    """``servovalve-twin run`` and ``ros2 run servovalve_twin twin`` fill one TwinConfig: every
+    option of one is a parameter of the other (the executable had no algorithm, estimator or
+    clock period), and the executable hosts an algorithm and the estimator."""
+    import argparse
+    from servovalve_twin.cli import build_parser
+    from servovalve_twin.twin.config import TwinConfig
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    run_dests = {a.dest for a in sub.choices['run']._actions}
+    assert set(TwinConfig.names()) <= run_dests
+    assert run_dests - set(TwinConfig.names()) == {'help', 'param', 'out', 'progress',
+                                                   'discoverable'}
+    r = subprocess.run([console_script('twin'), '--ros-args', '-p', 'valve_model:=C2', '-p',
+                        'scenario:=defaults', '-p', 'record:=false', '-p',
+                        "algorithm:=['servovalve_twin.prognostics.monitor:MonitorAlgorithm']",
+                        '-p', 'estimator:=SQ', '-p', 'clock_period:=0.005'],
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    print(r.stdout, r.stderr[-500:])
+    assert r.returncode == 0
+    assert 'twin: EHA monitor:' in r.stdout and 'twin: Estimator:' in r.stdout
+    r = subprocess.run([console_script('twin'), '--ros-args', '-p', 'clock:=sometimes'],
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert r.returncode == 2 and "clock = 'sometimes': expected one of own, follow" in r.stderr
+    assert r.stderr.count('\n') == 1 and not list(tmp_path.iterdir())
+
+
 def test_twin_executable_stops_cleanly_on_sigint(tmp_path):
     """Ctrl-C (or launch's SIGINT) ends ``twin`` at a tick with exit code 0 -- launch logs no
     'process has died' -- and a finished bag; a second SIGINT during the stop changes

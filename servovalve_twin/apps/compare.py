@@ -180,3 +180,22 @@ def check_same_inputs(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarra
             if bad.size:
                 raise TwinError(f'the runs have different inputs: {sig} differs at t = '
                                 f'{t[bad[0]]:.3f} s ({a[bad[0]]:g} vs {b[bad[0]]:g})')
+
+
+def parse_tolerances(items: list[str]) -> dict[str, float]:
+    """``SIGNAL=MAX`` items (``compare --tolerance``) as {signal: max error}; ``current`` is
+    ``cor``; anything else is one error line naming the signals allowed."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition('=')
+        name = name.strip().lower()
+        if name == 'current':
+            name = 'cor'
+        if not sep or name not in COMPARED:
+            raise TwinError(f'--tolerance expects SIGNAL=MAX with SIGNAL one of '
+                            f'{sorted(COMPARED)}, got {item!r}')
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise TwinError(f'--tolerance {item!r}: {value!r} is not a number') from None
+    return out

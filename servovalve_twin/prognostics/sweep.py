@@ -337,3 +337,43 @@ def plot_signature(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def parse_fault_specs(items: list[str]) -> tuple[dict[str, list[float]], dict[str, tuple]]:
+    """``sweep --fault`` items: ``NAME:S1,S2,...`` (a grid) or ``NAME:LO~HI`` (a range for
+    Monte-Carlo draws), as (grid, ranges)."""
+    grid: dict[str, list[float]] = {}
+    ranges: dict[str, tuple[float, float]] = {}
+    for item in items:
+        name, sep, spec = item.partition(':')
+        try:
+            if not sep:
+                raise ValueError
+            if '~' in spec:
+                lo, hi = (float(v) for v in spec.split('~'))
+                if not lo < hi:
+                    raise TwinError(f'--fault {item}: the range LO~HI needs LO < HI')
+                ranges[name] = (lo, hi)
+            else:
+                grid[name] = [float(v) for v in spec.split(',') if v.strip()]
+        except ValueError:
+            raise TwinError(f'--fault expects NAME:S1,S2,... (grid) or NAME:LO~HI (with '
+                            f'--draws), got {item!r}') from None
+    return grid, ranges
+
+
+def parse_vary(items: list[str]) -> dict[str, float]:
+    """``sweep --vary PARAM=SPREAD`` items (0 <= SPREAD < 1, relative) as {param: spread}."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition('=')
+        try:
+            if not sep:
+                raise ValueError
+            out[name] = float(value)
+            if not 0.0 <= out[name] < 1.0:
+                raise ValueError
+        except ValueError:
+            raise TwinError(f'--vary expects PARAM=SPREAD with 0 <= SPREAD < 1, got {item!r}'
+                            ) from None
+    return out

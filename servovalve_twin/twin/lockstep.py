@@ -75,6 +75,7 @@ from ..physics.scenario import Scenario
 from ..physics.simulate import OUTPUT_PERIOD_NS, effective_params, steps_per
 from ..physics.valves import get_monitor_model, get_valve_model
 from ..prognostics.algorithm import load_algorithm
+from .config import CLOCK_MODES
 
 TICK_DEADLINE_S = 5.0
 #: the longest sleep between two looks at a stop request (pacing, following)
@@ -89,8 +90,6 @@ CLOCK_ACK_S = 2.0
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: the twin publishes /clock itself, or follows another owner's
-CLOCK_MODES = ('own', 'follow')
 #: how often (simulated time) the executor gets a turn: node clocks and parameter requests
 #: follow at this pace, external subscribers are noticed at it
 GRAPH_PERIOD_NS = 100_000_000

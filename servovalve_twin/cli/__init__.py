@@ -1,0 +1,71 @@
+"""The command-line front door: ``servovalve-twin <command> ...``.
+
+A thin layer over plain functions: each command (a :class:`~.common.Command` in a module of
+this package, its options beside its body) parses its options, calls the library and prints.
+Exit codes: 0 success; 1 a ``--tolerance`` was exceeded (``compare``); 2 bad input, with a
+one-line message on stderr (never a traceback); 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from typing import Sequence
+
+from ..errors import TwinError
+from . import bags, phm, physics, ros, sweep
+from .common import Command, Parser
+
+#: every command, in the order of ``--help``: a new command is a class and one line here
+COMMANDS: list[Command] = [
+    physics.Simulate(), physics.Characteristic(), physics.Calibrate(), physics.Params(),
+    physics.Report(), ros.Run(), bags.Compare(), ros.Replay(), sweep.Sweep(), ros.Play(),
+    phm.Evaluate(), phm.Diagnose(), phm.MonitorThresholds(), phm.Bit(), phm.Prognose(),
+    physics.Fmu(), physics.Faults(), bags.Reindex(),
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+    parser = Parser(prog='servovalve-twin', description=__doc__.splitlines()[0])
+    parser.add_argument('--version', action='version', version=f'servovalve-twin {__version__}')
+    sub = parser.add_subparsers(dest='command', required=True, parser_class=Parser)
+    for command in COMMANDS:              # every --help opens with the command's purpose
+        p = sub.add_parser(command.name, help=command.help, description=command.help)
+        command.add_arguments(p)
+        p.set_defaults(func=command.main)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        from ..config import resolve_bag
+        for attr in ('bag', 'ref', 'run'):        # @paper_HD: a packaged reference bag
+            value = getattr(args, attr, None)
+            if isinstance(value, str) and value.startswith('@'):
+                setattr(args, attr, str(resolve_bag(value)))
+        return int(args.func(args) or 0)
+    except TwinError as exc:
+        text = ' '.join(str(exc).split())            # one line, whatever the message holds
+        if len(text) > 600:
+            text = text[:600] + ' ...'
+        print(f'servovalve-twin {args.command}: error: {text}', file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # the reader went away (`... --out - | head`): quiet, as command-line tools are
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
+    except OSError as exc:
+        what = f'{exc.strerror}: {exc.filename}' if exc.strerror and exc.filename else exc
+        print(f'servovalve-twin {args.command}: error: {what}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f'servovalve-twin {args.command}: interrupted', file=sys.stderr)
+        return 130
+
+
+__all__ = ['COMMANDS', 'Command', 'build_parser', 'main']

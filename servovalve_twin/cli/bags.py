@@ -1,0 +1,77 @@
+"""Commands on recorded runs: compare, reindex."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .common import Command
+
+
+class Compare(Command):
+    name = 'compare'
+    help = 'errors of a run against a reference (bags or CSVs)'
+
+    def add_arguments(self, p):
+        p.add_argument('ref', metavar='REF',
+                       help='the reference: a bag, a simulate CSV, or @paper_HD')
+        p.add_argument('run', metavar='RUN', help='the run compared with it (bag or CSV)')
+        p.add_argument('--plot', metavar='FILE.png',
+                       help='overlay of both runs (paper Figs. 19-23)')
+        p.add_argument('--json', metavar='FILE', help='the metrics as JSON')
+        p.add_argument('--tolerance', action='append', default=[], metavar='SIGNAL=MAX',
+                       help='exit 1 when the whole-run max error of SIGNAL (xj, dxj, p12, xs, '
+                            'cor; SI units) exceeds MAX (repeatable)')
+
+    def main(self, args):
+        from ..apps.compare import (check_same_inputs, error_metrics, exceeded, format_table,
+                                    load_run, parse_tolerances, provenance_differences,
+                                    write_json)
+        from ..apps.plots import plot_overlay
+        tolerances = parse_tolerances(args.tolerance)
+        ref, windows = load_run(args.ref)
+        run, _ = load_run(args.run)
+        for line in provenance_differences(args.ref, args.run):
+            print(f'servovalve-twin compare: warning: {line}', file=sys.stderr)
+        check_same_inputs(ref, run)
+        metrics = error_metrics(ref, run, windows)
+        print(f'{args.run} against {args.ref} (errors run - ref, RMS / max):')
+        print(format_table(metrics))
+        if args.json:
+            write_json(args.json, dict(ref=str(args.ref), run=str(args.run), windows=windows,
+                                       metrics=metrics, tolerances=tolerances))
+        if args.plot:
+            named = {k: v for k, v in windows.items() if not k.startswith('phase')}
+            plot_overlay({Path(args.ref).stem: ref, Path(args.run).stem: run}, args.plot,
+                         reference=Path(args.ref).stem, title=f'{Path(args.run).stem} against '
+                         f'{Path(args.ref).stem}', windows=named, inputs=True)
+        bad = exceeded(metrics, tolerances)
+        for line in bad:
+            print(f'tolerance exceeded: {line}')
+        return 1 if bad else 0
+
+
+class Reindex(Command):
+    name = 'reindex'
+    help = 'rebuild a bag (and metadata.yaml) cut short by a kill'
+
+    def add_arguments(self, p):
+        p.add_argument('bag', metavar='BAG', help='the bag directory or its .mcap file')
+
+    def main(self, args):
+        from ..bag.reindex import reindex
+        meta = reindex(args.bag)
+        print(f'{args.bag}: rebuilt, {meta["message_count"]} messages over '
+              f'{meta["duration"]["nanoseconds"] * 1e-9:.3f} s in '
+              f'{len(meta["topics_with_message_count"])} topics')
+        for rep in meta['report']['files']:
+            for d in rep['damaged']:
+                print(f'{args.bag}: {rep["file"]}: skipped {d["bytes"]} bytes from byte '
+                      f'{d["at"]} ({d["reason"]})', file=sys.stderr)
+            if rep['dropped_messages']:
+                print(f'{args.bag}: {rep["file"]}: dropped {rep["dropped_messages"]} messages '
+                      'of channels it does not describe', file=sys.stderr)
+            if rep.get('original_kept_as'):
+                print(f'{args.bag}: {rep["file"]}: the damaged original is kept as '
+                      f'{rep["original_kept_as"]}', file=sys.stderr)
+        return 0

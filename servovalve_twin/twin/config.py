@@ -1,0 +1,223 @@
+"""One configuration of a twin run, filled alike by ``servovalve-twin run`` (its options) and by
+the ``twin`` executable (its ``--ros-args -p`` parameters): :class:`TwinConfig`.
+
+Each option is declared once, below, with its help text and its type: the command line derives
+its ``--options`` from the fields, the executable the parameter names it accepts (the physical
+parameters besides: ``--param M=400`` there, ``-p M:=400.0`` here), so the two accept the same
+options by construction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, Mapping, Sequence
+
+from ..errors import TwinError
+
+#: the twin publishes /clock itself, or follows another owner's
+CLOCK_MODES = ('own', 'follow')
+
+
+def _positive(name: str, v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+            math.isfinite(v) and v > 0):
+        raise TwinError(f'{name} = {v!r}: expected a positive number')
+    return float(v)
+
+
+def _count(name: str, v: Any) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise TwinError(f'{name} = {v!r}: expected a count >= 0')
+    return v
+
+
+def _text(name: str, v: Any) -> str:
+    if not isinstance(v, str):
+        raise TwinError(f'{name} = {v!r}: expected a string')
+    return v
+
+
+def _texts(name: str, v: Any) -> tuple[str, ...]:
+    if isinstance(v, str):
+        v = [v]
+    if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
+        raise TwinError(f'{name} = {v!r}: expected a list of strings')
+    return tuple(x for x in v if x)
+
+
+def _flag(name: str, v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise TwinError(f'{name} = {v!r}: expected true or false')
+    return v
+
+
+def _port(name: str, v: Any) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < 65536:
+        raise TwinError(f'{name} = {v!r}: expected a TCP port, 0-65535 (0: any free one)')
+    return v
+
+
+def _clock(name: str, v: Any) -> str:
+    if v not in CLOCK_MODES:
+        raise TwinError(f'{name} = {v!r}: expected one of {", ".join(CLOCK_MODES)}')
+    return v
+
+
+def option(default: Any, help: str, check: Callable[[str, Any], Any], *,
+           metavar: str | None = None, cli: dict | None = None) -> Any:
+    """A field of :class:`TwinConfig`: its default, its help, how a value is checked and
+    converted, and how the command line spells it (``cli``: argparse keywords)."""
+    return dataclasses.field(default=default, metadata=dict(
+        help=help, check=check, metavar=metavar, cli=cli or {}))
+
+
+@dataclasses.dataclass
+class TwinConfig:
+    """What a twin run is made of (the physical parameters aside: ``overrides``)."""
+
+    valve_model: str = option('C2', 'valve model: a name of the registry '
+                              '(servovalve-twin --help lists them)', _text, metavar='NAME')
+    scenario: str = option('paper', 'built-in scenario name or YAML file (default paper)',
+                           _text, metavar='paper|FILE.yaml')
+    control_period: float = option(1e-3, 'lockstep period [s] (default 0.001; must divide '
+                                   '1 ms)', _positive, metavar='S')
+    clock_period: float = option(1e-2, '/clock publication period in simulated time [s] '
+                                 '(default 0.01)', _positive, metavar='S')
+    real_time_factor: float | None = option(
+        None, 'pace simulated time to X simulated seconds per wall second (1: real time), '
+        'so that ordinary use_sim_time nodes beside the twin keep up; default: as fast as '
+        'possible', _positive, metavar='X')
+    namespace: str = option('', "the actuator's namespace: its nodes and topics under /NS "
+                            '(/NS/xj), so that several actuators share one graph; /clock '
+                            'stays global', _text, metavar='NS')
+    clock: str = option('own', "own: publish /clock (the graph's one clock owner, default); "
+                        "follow: run each tick once another owner's /clock reaches it", _clock,
+                        cli=dict(choices=CLOCK_MODES))
+    followers: int = option(0, 'the clock owner starts once N twins following its /clock '
+                            '(other namespaces) are on the graph (default 0: at once)', _count,
+                            metavar='N')
+    bag: str = option('', 'bag directory (default bags/<scenario>_<model>_<UTC time>)', _text,
+                      metavar='DIR')
+    record: bool = option(True, 'record a bag (default true)', _flag,
+                          cli=dict(flag='--no-bag', action='store_false',
+                                   help='do not record'))
+    overwrite: bool = option(False, 'replace an existing bag', _flag,
+                             cli=dict(action='store_true'))
+    monitor: str = option('', 'run the monitor node beside the plant with this simplified '
+                          'model', _text, metavar='MODEL')
+    estimator: str = option('', 'run the estimator node: diagnosis with this simplified model '
+                            'over the last 0.5 s, every 0.25 s (estimator/<fault>_severity, '
+                            'diagnostics)', _text, metavar='MODEL')
+    algorithm: tuple[str, ...] = option(
+        (), 'host this Algorithm in the lockstep (repeatable); its outputs are published and '
+        'recorded', _texts, metavar='MOD:CLASS', cli=dict(action='append'))
+    algorithm_param: tuple[str, ...] = option(
+        (), 'set a parameter of the algorithms (repeatable)', _texts, metavar='NAME=VALUE',
+        cli=dict(action='append'))
+    foxglove: int | None = option(
+        None, 'serve the topics live to the Foxglove app (Foxglove WebSocket on '
+        'ws://127.0.0.1:PORT, default 8765; layout: config/foxglove_layout.json)', _port,
+        metavar='PORT', cli=dict(type=int, nargs='?', const=8765))
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The option names (the executable's ``-p`` names)."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, Any]) -> 'TwinConfig':
+        """From typed values (ROS parameters, or the command line's parsed options): each one
+        checked; an unknown name is refused with the list of known ones."""
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - set(fields))
+        if unknown:
+            raise TwinError(f'unknown option {unknown[0]!r}; expected one of {list(fields)}')
+        kw = {}
+        for name, value in values.items():
+            if value is None:
+                continue                           # left to its default
+            kw[name] = fields[name].metadata['check'](name, value)
+        return cls(**kw)
+
+    @classmethod
+    def add_arguments(cls, parser, *, required: Sequence[str] = ('valve_model',)) -> None:
+        """The command line's options, one per field (``--valve-model``, ...)."""
+        for f in dataclasses.fields(cls):
+            cli = dict(f.metadata['cli'])
+            flag = cli.pop('flag', '--' + f.name.replace('_', '-'))
+            kw = dict(help=cli.pop('help', f.metadata['help']), dest=f.name, **cli)
+            if kw.get('action') in ('store_true', 'store_false'):
+                kw['default'] = f.default
+            else:
+                kw.setdefault('metavar', f.metadata['metavar'])
+                kw['default'] = None                # unset: the field's default
+                if 'type' not in kw and f.metadata['check'] is _positive:
+                    kw['type'] = float
+                elif 'type' not in kw and f.metadata['check'] is _count:
+                    kw['type'] = int
+            if f.name in required:
+                kw['required'] = True
+            if f.name == 'valve_model':
+                from ..physics.valves import VALVE_MODEL_NAMES
+                kw['help'] = 'valve model: ' + ', '.join(VALVE_MODEL_NAMES)
+            parser.add_argument(flag, **kw)
+
+    @classmethod
+    def from_args(cls, args) -> 'TwinConfig':
+        return cls.from_values({n: getattr(args, n) for n in cls.names()})
+
+    def algorithm_params(self) -> dict[str, str]:
+        """``algorithm_param`` as {name: text} (typed by each algorithm from its defaults)."""
+        return parse_assignments_text(self.algorithm_param, 'algorithm_param')
+
+    def algorithms(self) -> list[tuple[str, dict | None]]:
+        """The hosted algorithms as (class path, parameters): the user's, then the
+        estimator's."""
+        params = self.algorithm_params()
+        out: list[tuple[str, dict | None]] = [(a, params) for a in self.algorithm]
+        if self.estimator:
+            out.append(('servovalve_twin.prognostics.estimator:Estimator',
+                        {'model': self.estimator,
+                         'model_form': self.estimator != self.valve_model}))
+        return out
+
+    def twin_kwargs(self, bag: str | None) -> dict[str, Any]:
+        """The keywords of :class:`~.lockstep.Twin` (and ``run_twin``) for this configuration,
+        recording into ``bag`` (None: no bag)."""
+        return dict(control_period=self.control_period, clock_period=self.clock_period,
+                    real_time_factor=self.real_time_factor, namespace=self.namespace or None,
+                    clock=self.clock, followers=self.followers, bag=bag,
+                    overwrite=self.overwrite, monitor=self.monitor or None,
+                    algorithms=self.algorithms(), foxglove=self.foxglove)
+
+    def bag_dir(self) -> str | None:
+        """Where it records: ``bag``, or bags/<scenario>_<model>_<UTC time>; None without a
+        recording."""
+        if not self.record:
+            return None
+        if self.bag:
+            return self.bag
+        from ..config import default_bag_dir, load_scenario
+        return str(default_bag_dir(load_scenario(self.scenario).name, self.valve_model))
+
+    @property
+    def shares_the_graph(self) -> bool:
+        """A namespaced, following, waiting or paced twin is there to share a graph with other
+        processes (DDS discovery on)."""
+        return bool(self.namespace or self.clock == 'follow' or self.followers
+                    or self.real_time_factor is not None)
+
+
+def parse_assignments_text(items: Sequence[str], what: str) -> dict[str, str]:
+    """``NAME=VALUE`` items as {name: value text}; a malformed one is one error line."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition('=')
+        if not sep or not name.strip():
+            raise TwinError(f'{what} expects NAME=VALUE, got {item!r}')
+        out[name.strip()] = value.strip()
+    return out
+
+
+__all__ = ['TwinConfig', 'CLOCK_MODES', 'parse_assignments_text']
