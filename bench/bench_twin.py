@@ -84,7 +84,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Float64
-from servovalve_twin.nodes.common import QOS
+from servovalve_twin.nodes.topics import QOS
 n = int(sys.argv[1])
 ctx = Context(); rclpy.init(context=ctx)
 node = Node('floor', context=ctx)

@@ -57,6 +57,7 @@ from .physics.params import DEFAULTS, EhaParams, kernel_as_array
 from .physics.plant import TICK_OUT, run_tick
 from .physics.servovalve import PLANT_STATE, S_SIZE, S_XJ
 from .physics.simulate import steps_per, valve_response
+from .physics.signals import MEASURED
 from .physics.valve_state import V_P1, V_P2, V_P12
 from .physics.valves import get_valve_model
 
@@ -87,7 +88,7 @@ class EhaModel(PrognosticsModel):
 
     is_vectorized = True
     inputs = ['com', 'fr', 'psr']
-    outputs = ['xj', 'dxj', 'p12']
+    outputs = list(MEASURED)
 
     def __init__(self, valve_model: str = 'SQ', degradation: Sequence[str] = ('leakage_growth',),
                  params: EhaParams | None = None, control_period: float = 1e-3,

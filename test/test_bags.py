@@ -46,7 +46,7 @@ def test_encoders_equal_raw_wire_bytes(ros_context):
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
-    from servovalve_twin.nodes.common import QOS, joint_state
+    from servovalve_twin.nodes.topics import QOS, joint_state
     node = Node('cdr_probe', context=ros_context)
     got = {}
     msgs = {}

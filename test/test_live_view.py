@@ -102,7 +102,7 @@ def test_play_serves_a_bag_to_foxglove(ros_context):
 
 def test_the_shipped_layout_names_the_twins_topics():
     layout = json.loads((ROOT / 'config' / 'foxglove_layout.json').read_text())
-    from servovalve_twin.nodes.common import TOPICS
+    from servovalve_twin.nodes.topics import TOPICS
     from servovalve_twin.nodes.monitor import MONITOR_TOPICS
     known = {f'/{t}' for t in list(TOPICS) + list(MONITOR_TOPICS)}
     paths = [p['value'] for c in layout['configById'].values() for p in c.get('paths', [])]

@@ -387,8 +387,8 @@ def test_a_sim_time_node_beside_a_paced_twin_sees_every_timer_period(ros_context
 @pytest.mark.ros
 @pytest.mark.slow
 def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
-    """Two twins in one graph: /left owns /clock (paced, starting once /right is there),
-    /right follows it with a fault of its own. A watcher sees both state streams and one /clock publisher, never going back; each
+    """Two twins in one graph: /left owns /clock (paced, starting once /right and the watcher
+    are there), /right follows it with a fault of its own. A watcher sees both state streams and one /clock publisher, never going back; each
     bag is its own actuator's run bit for bit (the follower's lockstep does not depend on the
     owner's pace), the fault in /right's only."""
     import subprocess
@@ -399,7 +399,10 @@ def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
     from conftest import console_script
     healthy = {**SHORT, 'duration': 1.0}
     faulty = {**healthy, 'faults': [{'at': 0.1, 'fault': 'dynamic_friction', 'severity': 15.0}]}
-    watcher = Node('watcher', context=ros_context)
+    # the watcher shows itself as a follower (a twin_clock node of its own namespace on
+    # /clock), so that the owner starts only once it has discovered the watcher too: three
+    # processes discovering each other took from 0.4 s to several seconds here
+    watcher = Node('twin_clock', namespace='/watcher', context=ros_context)
     clocks, xj = [], {'left': 0, 'right': 0}
     owners = []
     watcher.create_subscription(Clock, '/clock', lambda m: (
@@ -416,7 +419,12 @@ def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
                                  '--bag', str(tmp_path / ns), *extra],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     right = twin('right', faulty, '--clock', 'follow')
-    left = twin('left', healthy, '--real-time-factor', '2', '--followers', '1')
+    deadline = time.monotonic() + 60            # the watcher and /right know each other
+    while time.monotonic() < deadline and not any(
+            i.node_namespace == '/right' for i in watcher.get_subscriptions_info_by_topic(
+                '/clock')):
+        time.sleep(0.05)
+    left = twin('left', healthy, '--real-time-factor', '2', '--followers', '2')
     outs = _spin_while(watcher, [left, right])
     watcher.destroy_node()
     for p, (out, err) in zip((left, right), outs):

@@ -14,7 +14,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import Float64
 from sensor_msgs.msg import JointState
 
-from servovalve_twin.nodes.common import QOS
+from servovalve_twin.nodes.topics import QOS
 from conftest import ROOT, console_script
 
 

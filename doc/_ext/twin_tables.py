@@ -35,7 +35,7 @@ def _valve_models():
 
 
 def _topics():
-    from servovalve_twin.nodes.common import TOPICS
+    from servovalve_twin.nodes.topics import TOPICS
     return (['topic', 'type', 'unit', 'publisher', 'meaning'],
             [[name, f'{t.__module__.split(".")[0]}/msg/{t.__name__}', unit, pub, meaning]
              for name, (t, unit, pub, meaning) in TOPICS.items()])

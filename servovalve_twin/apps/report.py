@@ -13,6 +13,7 @@ from typing import Any, Mapping
 
 from ..physics.characteristic import characteristic
 from ..physics.params import make_params
+from ..physics.signals import MEASURED
 from ..physics.simulate import RunResult
 from ..physics.valves import VALVE_MODEL_NAMES
 from ..progress import progress
@@ -53,7 +54,7 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
         'P12 rms / max, 0.35-0.50 s [MPa] | back movement [mm] | peak P12 after 0.75 s [MPa] |',
         '|---|---|---|---|---|---|---|---|---|']
     for name, r in runs.items():
-        m = error_metrics(ref.signals, r.signals, windows, ('xj', 'dxj', 'p12'))
+        m = error_metrics(ref.signals, r.signals, windows, MEASURED)
         cells = []
         for w in ('all', DROP_WINDOW[0]):
             for sig, scale in (('xj', 1e3), ('dxj', 1e3), ('p12', 1e-6)):
@@ -137,7 +138,7 @@ def beyond_report(out_dir: Path) -> str:
             r = simulate(model, scn, overrides)
             runs[model] = r.signals
             m = error_metrics(ref.signals, r.signals, {w: scn.windows[w] for w in wins},
-                              ('xj', 'dxj', 'p12'))
+                              MEASURED)
             for i, w in enumerate(wins):
                 t0, t1 = scn.windows[w]
                 first = i == 0

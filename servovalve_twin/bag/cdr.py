@@ -80,7 +80,7 @@ def encode_joint_state(msg) -> bytes:
 
 
 def encode_jack_state(stamp_ns: int, xj: float, dxj: float, force: float) -> bytes:
-    """:func:`encode_joint_state` of :func:`~..nodes.common.joint_state`'s message, without
+    """:func:`encode_joint_state` of :func:`~..nodes.topics.joint_state`'s message, without
     building it (the twin's recorder, when nothing on DDS subscribes to the joint state)."""
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     return _JACK.pack(_HEADER, sec, nanosec, 1, 1, 5, _JACK_NAME, 1, float(xj), 1, float(dxj),

@@ -23,7 +23,8 @@ from ..errors import TwinError
 from ..physics.params import DEFAULTS, EhaParams
 from ..prognostics.algorithm import (Algorithm, AlgorithmError, AlgorithmRunner, Health,
                                      load_algorithm)
-from .common import TwinNode, spin_standalone
+from .base import TwinNode
+from .process import spin_standalone
 
 _DEFAULT_INPUT = {'psr': DEFAULTS.PSRN}
 

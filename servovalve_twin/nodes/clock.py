@@ -15,7 +15,7 @@ from rclpy.clock import ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
-from .common import spin_standalone
+from .process import spin_standalone
 
 
 def clock_msg(t_ns: int) -> Clock:

@@ -6,7 +6,8 @@ from typing import Sequence
 
 from ..physics.ecu import EcuLaw
 from ..physics.params import EhaParams
-from .common import TwinNode, spin_standalone
+from .base import TwinNode
+from .process import spin_standalone
 
 
 class Ecu(TwinNode):

@@ -18,7 +18,7 @@ from ..physics.params import PARAM_NAMES, EhaParams
 from ..physics.valves import MONITOR_MODEL_NAMES, get_monitor_model
 from ..prognostics.monitor import DEFAULT_MONITOR_MODEL, HealthConfig, MonitorAlgorithm
 from .algorithm import AlgorithmNode, algorithm_topics
-from .common import spin_standalone
+from .process import spin_standalone
 
 INPUTS = MonitorAlgorithm.inputs
 HEALTH_FIELDS = tuple(f.name for f in dataclasses.fields(HealthConfig))

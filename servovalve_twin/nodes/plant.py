@@ -12,7 +12,9 @@ from ..errors import ModelError
 from ..physics.params import EhaParams
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
-from .common import TwinNode, joint_state, spin_standalone
+from .base import TwinNode
+from .process import spin_standalone
+from .topics import joint_state
 
 STATE_TOPICS = ('xs', 'xj', 'dxj')
 VALVE_TOPICS = ('p12', 'qj', 'p1', 'p2')

@@ -18,7 +18,8 @@ from rcl_interfaces.msg import ParameterDescriptor
 
 from ..config import load_scenario
 from ..physics.scenario import Scenario
-from .common import TwinNode, spin_standalone
+from .base import TwinNode
+from .process import spin_standalone
 
 
 class ScheduleSource(TwinNode):

@@ -19,6 +19,7 @@ from ..jitcache import jit
 from .ecu import ecu_current
 from .jack import jack_step
 from .servovalve import S_DXJ, S_XJ, S_XS, servovalve_step
+from .signals import NAMES
 from .valve_state import V_FAIL, V_P1, V_P2, V_XJ
 from .valves import valve_p12
 
@@ -30,7 +31,7 @@ valve_p12_inline = jit(inline='always')(valve_p12.py_func)
 # disk, and loaded by every later process (servovalve_twin.jitcache).
 
 # columns of the rows written by run_steps_for's loops
-OUT_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj', 'p1', 'p2')
+OUT_COLUMNS = ('t',) + NAMES
 TICK_OUT = ('p12', 'qj', 'p1', 'p2')
 
 

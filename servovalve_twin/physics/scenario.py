@@ -28,8 +28,9 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ScenarioError
+from .signals import INPUTS
 
-SIGNALS = ('com', 'fr', 'psr')
+SIGNALS = INPUTS
 SIGNAL_UNITS = {'com': 'm', 'fr': 'N', 'psr': 'Pa'}
 _DEFAULT_VALUE = {'com': 0.0, 'fr': 0.0, 'psr': 20.0e6}
 _KEYS = {'name', 'description', 'duration', 'params', 'windows', 'faults'} | set(SIGNALS)

@@ -25,6 +25,7 @@ from .params import DEFAULTS, EhaParams
 from .plant import OUT_COLUMNS, TICK_OUT, run_steps_for, run_tick
 from .scenario import Scenario, as_scenario
 from .servovalve import PLANT_STATE, S_DXJ, S_SIZE, S_XJ, S_XS
+from .signals import COMMON, PORTS
 from .valves import ValveModel, get_valve_model
 
 OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
@@ -33,8 +34,8 @@ OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
 #: 2**16 rather than 2**14 steps: fewer chunk entries (numpy calls, the loop call) per run;
 #: 2**17 measured no faster here (bench_physics, interleaved)
 CHUNK_STEPS = 1 << 16
-CSV_COLUMNS = ('t', 'com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj')
-PORT_COLUMNS = ('p1', 'p2')
+CSV_COLUMNS = ('t',) + COMMON
+PORT_COLUMNS = PORTS
 SIGNAL_UNITS = dict(t='s', com='m', fr='N', psr='Pa', cor='A', xs='m', xj='m', dxj='m/s',
                     p12='Pa', qj='m^3/s', p1='Pa', p2='Pa')
 

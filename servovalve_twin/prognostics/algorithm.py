@@ -42,9 +42,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import TwinError
+from ..physics.signals import NAMES
 
 #: the signals an algorithm may read: the twin's Float64 topics (HD adds port pressures)
-SIGNALS = ('com', 'fr', 'psr', 'cor', 'xs', 'xj', 'dxj', 'p12', 'qj', 'p1', 'p2')
+SIGNALS = NAMES
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR'}
 

@@ -73,12 +73,13 @@ from ..physics.faults import FAULTS, combine
 from ..physics.params import PARAM_FIELDS, PARAM_NAMES, EhaParams
 from ..physics.scenario import Profile, Scenario
 from ..physics.simulate import simulate
+from ..physics.signals import MEASURED
 from ..physics.valves import get_monitor_model
 
 #: the catalog faults a simplified model can see (HD's geometry, e.g. clearance, it has not)
 DIAGNOSABLE = tuple(n for n, f in FAULTS.items()
                     if PARAM_FIELDS[f.param].metadata['group'] != 'hd')
-SIGNALS = ('xj', 'dxj', 'p12')
+SIGNALS = MEASURED
 #: residual scales [SI]: about SQ's RMS error against HD on the paper scenario
 #: (doc/results/against-hd.md)
 RESIDUAL_SCALE = {'xj': 2.0e-4, 'dxj': 3.0e-3, 'p12': 2.0e5}

@@ -22,10 +22,11 @@ from typing import Mapping
 import numpy as np
 
 from ..physics.valves import get_monitor_model
+from ..physics.signals import INPUTS, MEASURED
 from .algorithm import OK, WARN, Algorithm, AlgorithmError, Health
 from .diagnosis import DIAGNOSABLE, HEALTHY, UNEXPLAINED, diagnose
 
-_SIGNALS = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
+_SIGNALS = INPUTS + MEASURED
 
 
 class Estimator(Algorithm):

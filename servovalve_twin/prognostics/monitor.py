@@ -37,10 +37,11 @@ from ..errors import TwinError
 from ..physics.params import EhaParams
 from ..physics.scenario import Scenario
 from ..physics.simulate import RunResult, effective_params, simulate
+from ..physics.signals import INPUTS, MEASURED
 from ..physics.valves import get_monitor_model
 from .algorithm import Algorithm, Health
 
-RESIDUALS = ('xj', 'dxj', 'p12')
+RESIDUALS = MEASURED
 OK, WARN, ERROR = 0, 1, 2
 LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR'}
 
@@ -290,7 +291,7 @@ class MonitorAlgorithm(Algorithm):
     the worst threshold crossed. Hosted live by the ``monitor`` node, on bags by ``evaluate``
     and in sweeps -- the same per-tick code as :func:`monitor_run`'s arrays (tested equal)."""
 
-    inputs = ('com', 'fr', 'psr', 'xj', 'dxj', 'p12')
+    inputs = INPUTS + MEASURED
     outputs = tuple(f'residual_{s}' for s in RESIDUALS) + tuple(f'health_{s}' for s in RESIDUALS)
     parameters = {'monitor_model': DEFAULT_MONITOR_MODEL, 'window': 0.0, 'warn_xj': 0.0,
                   'error_xj': 0.0, 'warn_dxj': 0.0, 'error_dxj': 0.0, 'warn_p12': 0.0,

@@ -15,7 +15,7 @@ Per control period k (t = k*Tc, an integer count of nanoseconds; doc/design/ROS-
    integrating, so the run's last 1 ms row is complete.
 
 The nodes of one twin hand their Float64 values to each other in process
-(:class:`~..nodes.common.LocalBus`, in publishing order, each consumed once): a DDS round trip
+(:class:`~..nodes.inputs.LocalBus`, in publishing order, each consumed once): a DDS round trip
 per input cost more than everything else in a tick. Every topic is still published on DDS while
 something on the graph subscribes to it, and recorded whatever subscribes. Every 100 ms of
 simulated time (:data:`GRAPH_PERIOD_NS`) the twin looks for new subscribers and lets the
@@ -65,7 +65,9 @@ from ..config import load_scenario
 from ..errors import TwinError
 from ..nodes.algorithm import AlgorithmNode, algorithm_topics, verdict
 from ..nodes.clock import clock_msg
-from ..nodes.common import QOS, TOPICS, LocalBus, TwinNode
+from ..nodes.base import TwinNode
+from ..nodes.inputs import LocalBus
+from ..nodes.topics import QOS, TOPICS
 from ..nodes.ecu import Ecu
 from ..nodes.monitor import MONITOR_TOPICS, Monitor
 from ..nodes.plant import Plant

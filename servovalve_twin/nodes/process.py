@@ -1,0 +1,103 @@
+"""A node run alone, as ``ros2 run`` runs it: the one set-up of the standalone executables
+(:func:`spin_standalone`) -- signals, context, the start-up line, one error-line format, the
+shutdown in order."""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from ..errors import ParameterError, TwinError
+
+def _refuse_unknown_parameters(node: Node) -> None:
+    """A ``-p NAME:=VALUE`` the node does not declare is a misspelling, unless it is a physical
+    parameter another node reads (one ``--params-file config/eha.yaml`` serves every node)."""
+    from ..physics.params import PARAM_NAMES
+    given = getattr(node, '_parameter_overrides', {}) or {}
+    unknown = sorted(n for n in given if not node.has_parameter(n) and n not in PARAM_NAMES
+                     and not n.startswith('qos_overrides.'))
+    if unknown:
+        declared = sorted(n for n in node._parameters if n not in PARAM_NAMES)
+        raise TwinError(f'node {node.get_name()} has no parameter {unknown[0]!r}; it declares '
+                        f'{declared} and the physical parameters it reads')
+
+
+def describe(node: Node) -> str:
+    """What a node runs with, in one line: its models, control period and time source."""
+    parts = []
+    for name in ('valve_model', 'monitor_model', 'scenario'):
+        if node.has_parameter(name):
+            parts.append(f'{name} {node.get_parameter(name).value}')
+    if node.has_parameter('control_period'):
+        parts.append(f'control period {node.get_parameter("control_period").value:g} s')
+    sim = node.get_parameter('use_sim_time').value
+    parts.append('simulated time (/clock)' if sim else 'wall time')
+    return ', '.join(parts)
+
+
+def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Jazzy's idiom for a node run alone (``ros2 run`` / console script): SIGINT and SIGTERM
+    end it cleanly; bad parameters at start-up are one line and exit code 2.
+
+    rclpy's own signal handler shuts the context down under the executor, which then fails to
+    build its wait set (a race seen with SIGTERM), and an exception raised by a Python handler
+    inside a callback surfaces from pybind11 as a RuntimeError. So both signals only set a flag;
+    the executor waits at most 0.1 s at a time (a sim-time timer whose ``/clock`` stopped never
+    fires), sees it and leaves, and the ``finally`` below shuts down in order.
+    """
+    argv = list(args) if args is not None else list(sys.argv)
+    plain = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    if plain:
+        doc = (getattr(factory, '__doc__', None) or '').strip()
+        print(f'usage: {Path(argv[0]).name} [--ros-args -p NAME:=VALUE ... '
+              f'[--params-file FILE]]\n\n{doc}')
+        return 0 if plain[0] in ('-h', '--help') else 2
+    stop = []
+
+    def request_stop(*_):
+        stop.append(True)
+    signal.signal(signal.SIGTERM, request_stop)
+    signal.signal(signal.SIGINT, request_stop)
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    except rclpy._rclpy_pybind11.RCLError as exc:       # e.g. a params file that is missing
+        print(f'error: {" ".join(str(exc).split(", at ")[0].split())}', file=sys.stderr)
+        return 2
+    node = executor = None
+    if stop:            # asked to stop while rclpy started: do not build (and compile) a node
+        rclpy.try_shutdown()
+        return 0
+    try:
+        node = factory()
+        _refuse_unknown_parameters(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        # one start-up line; it also tells a supervisor (and the tests) that the signal
+        # handlers are in place and the node is up
+        node.get_logger().info('started: ' + describe(node))
+        while rclpy.ok() and not stop:
+            executor.spin_once(timeout_sec=0.1)
+    except ExternalShutdownException:
+        pass
+    except (TwinError, ParameterError, rclpy.exceptions.ParameterException) as exc:
+        # (the last: type or range refused at declare time) -- one line, of bounded length
+        text = ' '.join(str(exc).split())
+        print(f'error: {text[:600]}' + (' ...' if len(text) > 600 else ''), file=sys.stderr)
+        return 2
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+__all__ = ['spin_standalone', 'describe']
