@@ -269,7 +269,7 @@ def test_the_graph_still_sees_the_topics_the_nodes_hand_over_in_process(ros_cont
             while not (got['joint'] and got['clock']):
                 assert time.monotonic() < deadline, 'the listener was never reached'
                 twin.plant.pubs['joint_states'].publish(JointState())
-                twin.clock_pub.publish(Clock())
+                twin.sim.pub.publish(Clock())
                 time.sleep(0.01)
             result = twin.run()
         deadline = time.monotonic() + 10.0

@@ -45,4 +45,9 @@ def joint_state(stamp_ns: int, xj: float, dxj: float, force: float,
     return msg
 
 
-__all__ = ['QOS', 'TOPICS', 'JOINT_NAME', 'f64', 'joint_state']
+def type_name(msg_type: type) -> str:
+    module = msg_type.__module__.split('.')
+    return f'{module[0]}/msg/{msg_type.__name__}'
+
+
+__all__ = ['QOS', 'TOPICS', 'JOINT_NAME', 'f64', 'joint_state', 'type_name']

@@ -1,6 +1,19 @@
 """The twin: every node in one executor on simulated time, in deterministic lockstep
-(:mod:`.lockstep`), and its executable (:mod:`.executable`)."""
+(:mod:`.lockstep`), its configuration (:mod:`.config`), its place on the graph -- executor and
+/clock (:mod:`.graph`) -- and its executable (:mod:`.executable`).
 
-from .lockstep import Twin, TwinResult, run_twin
+The names below are loaded on first use: the command line reads :mod:`.config` to build its
+options without importing rclpy.
+"""
 
 __all__ = ['Twin', 'TwinResult', 'run_twin']
+
+
+def __getattr__(name: str):
+    if name in ('Twin', 'run_twin'):
+        from . import lockstep
+        return getattr(lockstep, name)
+    if name == 'TwinResult':
+        from .config import TwinResult
+        return TwinResult
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

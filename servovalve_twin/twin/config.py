@@ -1,4 +1,4 @@
-"""One configuration of a twin run, filled alike by ``servovalve-twin run`` (its options) and by
+"""One configuration of a twin run (and what it gives back, :class:`TwinResult`), filled alike by ``servovalve-twin run`` (its options) and by
 the ``twin`` executable (its ``--ros-args -p`` parameters): :class:`TwinConfig`.
 
 Each option is declared once, below, with its help text and its type: the command line derives
@@ -11,9 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+import numpy as np
+
 from ..errors import TwinError
+from ..physics.params import EhaParams
+from ..physics.scenario import Scenario
 
 #: the twin publishes /clock itself, or follows another owner's
 CLOCK_MODES = ('own', 'follow')
@@ -220,4 +225,63 @@ def parse_assignments_text(items: Sequence[str], what: str) -> dict[str, str]:
     return out
 
 
-__all__ = ['TwinConfig', 'CLOCK_MODES', 'parse_assignments_text']
+@dataclasses.dataclass
+class TwinResult:
+    valve_model: str
+    scenario: Scenario
+    params: EhaParams
+    control_period: float
+    ticks: int
+    wall_s: float
+    simulated_s: float
+    interrupted: bool = False
+    bag: Path | None = None
+    signals: dict[str, np.ndarray] | None = None
+    messages: int = 0
+    verdicts: list[str] = dataclasses.field(default_factory=list)   # monitor and algorithms
+
+
+def check_clock_options(clock: str, real_time_factor: float | None, followers: int) -> None:
+    if clock not in CLOCK_MODES:
+        raise TwinError(f'clock {clock!r}: expected one of {", ".join(CLOCK_MODES)}')
+    if real_time_factor is not None and not (
+            math.isfinite(real_time_factor) and real_time_factor > 0):
+        raise TwinError(f'real-time factor {real_time_factor}: expected a positive number '
+                        '(1.0 is real time)')
+    if real_time_factor is not None and clock == 'follow':
+        raise TwinError('a twin that follows /clock is paced by the clock owner: give the '
+                        'real-time factor to the owner')
+    if followers and clock == 'follow':
+        raise TwinError('followers: only the clock owner waits for its followers')
+    if followers < 0:
+        raise TwinError(f'followers {followers}: expected a count >= 0')
+
+
+def scenario_label(spec: Any, scenario: Scenario) -> str:
+    """What the schedule nodes' ``scenario`` parameter says: the name or file the twin was
+    given, or the scenario's own name when it was given as data."""
+    if isinstance(spec, (str, Path)):
+        return str(spec)
+    return scenario.name
+
+
+def ros_param(name: str, params: EhaParams):
+    """A node's ROS parameter for ``params``' value; a derived parameter left to its
+    derivation is 0.0, as the nodes declare it (so a fault on CLk still re-derives C4_alpha)."""
+    value = getattr(params, name)
+    return ros_param_value(name, 0.0 if value is None else value)
+
+
+def ros_param_value(name: str, value: Any):
+    """An rclpy Parameter of ``value``'s type (rclpy imported here: the command line reads
+    this module to build its options without it)."""
+    from rclpy.parameter import Parameter
+    if isinstance(value, bool):
+        return Parameter(name, Parameter.Type.BOOL, value)
+    if isinstance(value, int):
+        return Parameter(name, Parameter.Type.INTEGER, value)
+    return Parameter(name, Parameter.Type.DOUBLE, float(value))
+
+
+__all__ = ['TwinConfig', 'TwinResult', 'CLOCK_MODES', 'parse_assignments_text',
+           'check_clock_options', 'ros_param', 'ros_param_value', 'scenario_label']

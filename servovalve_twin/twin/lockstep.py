@@ -32,11 +32,8 @@ loop at a tick boundary (``EventsExecutor`` ignores both) and the bag is finaliz
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import os
 import signal
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -44,18 +41,9 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import rclpy
 from rclpy.context import Context
-from rclpy.duration import Duration
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from rclpy.task import Future
-from rclpy.validate_namespace import validate_namespace
-from rclpy.exceptions import InvalidNamespaceException
-from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Empty
 
 from ..bag.provenance import PROVENANCE, Provenance
 from ..bag.recorder import Recorder
@@ -67,7 +55,7 @@ from ..nodes.algorithm import AlgorithmNode, algorithm_topics, verdict
 from ..nodes.clock import clock_msg
 from ..nodes.base import TwinNode
 from ..nodes.inputs import LocalBus
-from ..nodes.topics import QOS, TOPICS
+from ..nodes.topics import TOPICS, type_name
 from ..nodes.ecu import Ecu
 from ..nodes.monitor import MONITOR_TOPICS, Monitor
 from ..nodes.plant import Plant
@@ -77,64 +65,15 @@ from ..physics.scenario import Scenario
 from ..physics.simulate import OUTPUT_PERIOD_NS, effective_params, steps_per
 from ..physics.valves import get_monitor_model, get_valve_model
 from ..prognostics.algorithm import load_algorithm
-from .config import CLOCK_MODES
+from .graph import EXECUTORS, GraphClock, OwnerLeft, absolute_namespace
+from .config import (TwinResult, check_clock_options, ros_param, ros_param_value,
+                     scenario_label)
 
-TICK_DEADLINE_S = 5.0
-#: the longest sleep between two looks at a stop request (pacing, following)
-PACE_SLICE_S = 0.05
-#: following: how often (wall) a twin waiting for /clock checks that the owner is still there
-OWNER_CHECK_S = 2.0
-#: how long the clock owner waits at the end for its last /clock to reach the followers
-CLOCK_ACK_S = 2.0
-#: /clock from its owner: the latest time is all that counts, and a follower that joins late
-#: (discovery) is handed it at once (transient local); rclpy's time sources (best effort,
-#: volatile) match it
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: how often (simulated time) the executor gets a turn: node clocks and parameter requests
 #: follow at this pace, external subscribers are noticed at it
 GRAPH_PERIOD_NS = 100_000_000
 
 
-def _events_executor(*, context: Context):
-    """rclpy's EventsExecutor calls ``faulthandler.enable()`` on ``sys.stderr``, which fails
-    where stderr is not a real file (Jupyter, pytest's capture): hand it the process's own."""
-    try:
-        sys.stderr.fileno()
-        return EventsExecutor(context=context)
-    except (AttributeError, OSError, ValueError):
-        saved, sys.stderr = sys.stderr, sys.__stderr__
-        try:
-            return EventsExecutor(context=context)
-        finally:
-            sys.stderr = saved
-
-
-#: rclpy's EventsExecutor was measured 8x cheaper per tick than the SingleThreadedExecutor
-#: here (bench/bench_twin.py); the latter is kept for comparison.
-EXECUTORS = {'events': _events_executor, 'single': SingleThreadedExecutor}
-
-
-def _type_name(msg_type: type) -> str:
-    module = msg_type.__module__.split('.')
-    return f'{module[0]}/msg/{msg_type.__name__}'
-
-
-@dataclasses.dataclass
-class TwinResult:
-    valve_model: str
-    scenario: Scenario
-    params: EhaParams
-    control_period: float
-    ticks: int
-    wall_s: float
-    simulated_s: float
-    interrupted: bool = False
-    bag: Path | None = None
-    signals: dict[str, np.ndarray] | None = None
-    messages: int = 0
-    verdicts: list[str] = dataclasses.field(default_factory=list)   # monitor and algorithms
 
 
 class Twin:
@@ -179,26 +118,49 @@ class Twin:
                  clock: str = 'own', real_time_factor: float | None = None,
                  followers: int = 0):
         get_valve_model(valve_model)
-        if clock not in CLOCK_MODES:
-            raise TwinError(f'clock {clock!r}: expected one of {", ".join(CLOCK_MODES)}')
-        if real_time_factor is not None and not (
-                math.isfinite(real_time_factor) and real_time_factor > 0):
-            raise TwinError(f'real-time factor {real_time_factor}: expected a positive number '
-                            '(1.0 is real time)')
-        if real_time_factor is not None and clock == 'follow':
-            raise TwinError('a twin that follows /clock is paced by the clock owner: give the '
-                            'real-time factor to the owner')
-        if followers and clock == 'follow':
-            raise TwinError('followers: only the clock owner waits for its followers')
-        if followers < 0:
-            raise TwinError(f'followers {followers}: expected a count >= 0')
-        self.follow = clock == 'follow'
-        self.followers = int(followers)
-        self.real_time_factor = real_time_factor
+        check_clock_options(clock, real_time_factor, followers)
+        if executor not in EXECUTORS:
+            raise TwinError(f'unknown executor {executor!r}; expected one of '
+                            f'{sorted(EXECUTORS)}')
+        if monitor is not None:
+            get_monitor_model(monitor)
         self.scenario = load_scenario(scenario)
         self.params = effective_params(self.scenario, overrides, base_params)
         self.valve_model = valve_model
         self.control_period = control_period
+        self._check_periods(control_period, clock_period)
+        self._own_context = context is None
+        self.context = context or Context()
+        if not self.context.ok():
+            rclpy.init(args=list(args) if args is not None else None, context=self.context,
+                       domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        self.writer = None
+        self.live = None
+        self.nodes: list[Node] = []
+        self.stop_requested = False
+        self._warned_foreign = False
+        try:
+            types = self._make_nodes(scenario, monitor, algorithms, namespace)
+            self.sim = GraphClock(self.clock, follow=clock == 'follow',
+                                  real_time_factor=real_time_factor, followers=followers,
+                                  namespace=self.namespace,
+                                  stopped=lambda: self.stop_requested)
+            self._make_recording(types, bag, overwrite, keep_values, on_flush, foxglove)
+            self.executor = EXECUTORS[executor](context=self.context)
+            for n in self.nodes:
+                self.executor.add_node(n)
+            self.sim.executor = self.executor
+            self.plant.plant.compile()
+            if self.monitor is not None:
+                self.monitor.model.compile()
+        except BaseException:          # a refusal, a failure or Ctrl-C during start-up
+            if self.writer is not None:
+                self.writer.abort()
+                self.writer = None
+            self.close()
+            raise
+
+    def _check_periods(self, control_period: float, clock_period: float) -> None:
         self.n_sub = steps_per(control_period, self.params, 'the control period')
         self.period_ns = self.n_sub * self.params.dt_ns
         if OUTPUT_PERIOD_NS % self.period_ns:
@@ -214,121 +176,86 @@ class Twin:
         #: the executor's turns (see _sync_graph): every /clock that falls on a 100 ms boundary
         self.graph_period_ns = self.clock_period_ns * max(
             1, GRAPH_PERIOD_NS // self.clock_period_ns)
-        self._own_context = context is None
-        self.context = context or Context()
-        if not self.context.ok():
-            rclpy.init(args=list(args) if args is not None else None, context=self.context,
-                       domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-        self.writer = None
+
+    def _make_nodes(self, scenario_spec: Any, monitor: str | None, algorithms: Sequence[Any],
+                    namespace: str | None) -> dict[str, str]:
+        """The actuator's nodes, the monitor and algorithm nodes, the clock node; returns the
+        recorded topics' types by graph name."""
         sim = Parameter('use_sim_time', Parameter.Type.BOOL, True)
-        period = Parameter('control_period', Parameter.Type.DOUBLE, float(control_period))
+        period = Parameter('control_period', Parameter.Type.DOUBLE, float(self.control_period))
         # the schedule nodes own the scenario loaded here, once; their parameter names it
-        scn = Parameter('scenario', Parameter.Type.STRING, _scenario_label(scenario,
-                                                                           self.scenario))
+        scn = Parameter('scenario', Parameter.Type.STRING,
+                        scenario_label(scenario_spec, self.scenario))
         self.bus = LocalBus()
         kw = dict(context=self.context, lockstep=True, bus=self.bus)
         if namespace:
-            kw['namespace'] = _absolute_namespace(namespace)
-        self.nodes: list[Node] = []
+            kw['namespace'] = absolute_namespace(namespace)
+
+        def physical(cls) -> list[Parameter]:
+            return [sim, period] + [ros_param(n, self.params) for n in cls.declared_physical()]
+        self.command_generator = CommandGenerator(scenario=self.scenario, **kw,
+                                                  parameter_overrides=[sim, period, scn])
+        self.load_supply = LoadSupply(scenario=self.scenario, **kw,
+                                      parameter_overrides=[sim, period, scn])
+        self.ecu = Ecu(params=self.params, **kw, parameter_overrides=physical(Ecu))
+        self.plant = Plant(params=self.params, **kw, parameter_overrides=physical(Plant) + [
+            Parameter('valve_model', Parameter.Type.STRING, self.valve_model)])
+        self.clock = Node('twin_clock', context=self.context, parameter_overrides=[sim],
+                          **({'namespace': kw['namespace']} if namespace else {}))
+        #: where the actuator's topics live: '' or '/left' (an explicit namespace or a __ns
+        #: remap among the context's arguments)
+        self.namespace = self.plant.get_namespace().rstrip('/')
+        self.nodes = [self.command_generator, self.load_supply, self.ecu, self.plant,
+                      self.clock]
+        topics = dict(TOPICS)
+        self.monitor = None
         if monitor is not None:
-            get_monitor_model(monitor)
-        try:
-            self.command_generator = CommandGenerator(
-                scenario=self.scenario, **kw, parameter_overrides=[sim, period, scn])
-            self.load_supply = LoadSupply(scenario=self.scenario, **kw,
-                                          parameter_overrides=[sim, period, scn])
-            self.ecu = Ecu(params=self.params, **kw, parameter_overrides=[sim, period] + [
-                _ros_param(n, self.params) for n in Ecu.declared_physical()])
-            self.plant = Plant(params=self.params, **kw, parameter_overrides=[
-                sim, period, Parameter('valve_model', Parameter.Type.STRING, valve_model)] + [
-                _ros_param(n, self.params) for n in Plant.declared_physical()])
-            self.clock = Node('twin_clock', context=self.context, parameter_overrides=[sim],
-                              **({'namespace': kw['namespace']} if namespace else {}))
-            #: where the actuator's topics live: '' or '/left' (an explicit namespace or a
-            #: __ns remap among the context's arguments)
-            self.namespace = self.plant.get_namespace().rstrip('/')
-            self.clock_pub = None if self.follow else self.clock.create_publisher(
-                Clock, '/clock', CLOCK_QOS)
-            self._turn: Future | None = None
-            self._owner_ns = -1         # the latest /clock seen (from the owner, following)
-            self.clock.create_subscription(Clock, '/clock', self._on_clock,
-                                           CLOCK_QOS if self.follow else QOS)
-            if self.follow:
-                # a follower's executor turns end at a message to itself on a hidden topic
-                # (no /clock of its own to wait on; EventsExecutor takes no guard condition)
-                self._turn_pub = self.clock.create_publisher(Empty, '~/_turn', QOS)
-                self.clock.create_subscription(Empty, '~/_turn', self._on_turn, QOS)
-            self.monitor = None
-            topics = dict(TOPICS)
-            if monitor is not None:
-                # the monitor models the whole actuator with the nominal (pre-fault) values
-                self.monitor = Monitor(params=self.params, **kw, parameter_overrides=[
-                    sim, period, Parameter('monitor_model', Parameter.Type.STRING, monitor)]
-                    + [_ros_param(n, self.params) for n in Monitor.declared_physical()])
-                topics.update(MONITOR_TOPICS)
-            # the user's algorithms: (class path or class, parameters) or instances
-            self.algorithms = []
-            for i, spec in enumerate(algorithms):
-                cls, aparams = spec if isinstance(spec, tuple) else (spec, None)
-                alg = load_algorithm(cls, aparams)
-                name = getattr(alg, 'node_name', None) or (
-                    'algorithm' if i == 0 else f'algorithm_{i + 1}')
-                node = AlgorithmNode(alg, name=name,
-                                     params=self.params, **kw,
-                                     parameter_overrides=[sim, period])
-                self.algorithms.append(node)
-                topics.update(algorithm_topics(alg))
-            types = {f'{self.namespace}/{t}': _type_name(spec[0])
-                     for t, spec in topics.items()}
-            types['/clock'] = 'rosgraph_msgs/msg/Clock'
-            # the bag is opened once everything else has been accepted: a refused start-up
-            # leaves no bag behind
-            if bag is not None:
-                self.writer = BagWriter(bag, overwrite=overwrite, flush_every_ns=None)
-            self.recorder = Recorder(self.writer, types, keep_values=keep_values,
-                                     namespace=self.namespace)
-            self.recorder.on_flush = on_flush
-            self.live = None
-            if foxglove is not None:        # serve every recorded message to the Foxglove app
-                from ..nodes.live import FoxgloveLive
-                self.live = FoxgloveLive(types, port=foxglove)
-                self.recorder.sinks.append(self.live.log)
-            #: the actuator's nodes: a scheduled fault goes to every one that reads its parameter
-            self.actuator = [self.ecu, self.plant]
-            self.nodes = [self.command_generator, self.load_supply, self.ecu, self.plant,
-                          self.clock] + ([self.monitor] if self.monitor else []) \
-                + self.algorithms
-            #: the nodes that complete a tick after the plant (they read its outputs)
-            self.observers = ([self.monitor] if self.monitor else []) + self.algorithms
-            for n in self.nodes:
-                if n is not self.clock:
-                    n.tap = self.recorder.record
-                    n.tap_value = self.recorder.record_value
-                    n.tap_bytes = self.recorder.record_bytes
-            if executor not in EXECUTORS:
-                raise TwinError(f'unknown executor {executor!r}; expected one of '
-                                f'{sorted(EXECUTORS)}')
-            self.executor = EXECUTORS[executor](context=self.context)
-            for n in self.nodes:
-                self.executor.add_node(n)
-            self.plant.plant.compile()
-            if self.monitor is not None:
-                self.monitor.model.compile()
-            if self.writer is not None:
-                record = Provenance.build(valve_model, self.scenario, self.params,
-                                          control_period, namespace=self.namespace)
-                self.writer.add_metadata(PROVENANCE, record.to_record())
-        except BaseException:          # a refusal, a failure or Ctrl-C during start-up
-            if self.writer is not None:
-                self.writer.abort()
-                self.writer = None
-            self.close()
-            raise
-        self.stop_requested = False
-        self._warned_foreign = False
-        self._clock_ns = -1             # the last /clock published
-        self._turned_ns = -1            # ... and taken by the executor
-        self._clock_wanted = True       # a node outside the twin subscribes to /clock
+            # the monitor models the whole actuator with the nominal (pre-fault) values
+            self.monitor = Monitor(params=self.params, **kw, parameter_overrides=physical(
+                Monitor) + [Parameter('monitor_model', Parameter.Type.STRING, monitor)])
+            topics.update(MONITOR_TOPICS)
+        # the user's algorithms: (class path or class, parameters) or instances
+        self.algorithms = []
+        for i, spec in enumerate(algorithms):
+            cls, aparams = spec if isinstance(spec, tuple) else (spec, None)
+            alg = load_algorithm(cls, aparams)
+            name = getattr(alg, 'node_name', None) or (
+                'algorithm' if i == 0 else f'algorithm_{i + 1}')
+            self.algorithms.append(AlgorithmNode(alg, name=name, params=self.params, **kw,
+                                                 parameter_overrides=[sim, period]))
+            topics.update(algorithm_topics(alg))
+        #: the nodes that complete a tick after the plant (they read its outputs)
+        self.observers = ([self.monitor] if self.monitor else []) + self.algorithms
+        self.nodes += self.observers
+        #: the actuator's nodes: a scheduled fault goes to every one that reads its parameter
+        self.actuator = [self.ecu, self.plant]
+        types = {f'{self.namespace}/{t}': type_name(spec[0]) for t, spec in topics.items()}
+        types['/clock'] = 'rosgraph_msgs/msg/Clock'
+        return types
+
+    def _make_recording(self, types: dict[str, str], bag: str | Path | None, overwrite: bool,
+                        keep_values: bool, on_flush: Callable[[float], None] | None,
+                        foxglove: int | None) -> None:
+        """The recorder every node publishes through, the bag (opened once everything else
+        has been accepted: a refused start-up leaves no bag behind) and the live view."""
+        if bag is not None:
+            self.writer = BagWriter(bag, overwrite=overwrite, flush_every_ns=None)
+        self.recorder = Recorder(self.writer, types, keep_values=keep_values,
+                                 namespace=self.namespace)
+        if self.writer is not None:     # after the topics, as the bag's records always were
+            self.writer.add_metadata(PROVENANCE, Provenance.build(
+                self.valve_model, self.scenario, self.params, self.control_period,
+                namespace=self.namespace).to_record())
+        self.recorder.on_flush = on_flush
+        if foxglove is not None:        # serve every recorded message to the Foxglove app
+            from ..nodes.live import FoxgloveLive
+            self.live = FoxgloveLive(types, port=foxglove)
+            self.recorder.sinks.append(self.live.log)
+        for n in self.nodes:
+            if n is not self.clock:
+                n.tap = self.recorder.record
+                n.tap_value = self.recorder.record_value
+                n.tap_bytes = self.recorder.record_bytes
 
     def request_stop(self, *_: Any) -> None:
         """Stop at the next tick boundary (signal handlers call this)."""
@@ -341,16 +268,15 @@ class Twin:
         com, fr, psr = (a.tolist() for a in self.scenario.inputs(
             np.arange(n_ticks + 1, dtype=np.int64) * self.period_ns))
         faults = self._fault_ticks()
-        if self.followers:
-            self._wait_for_followers()
+        self.sim.wait_for_followers()
         wall = time.perf_counter()
         k = -1
         for k in range(n_ticks + 1):
             t_ns = k * self.period_ns
-            if self.follow and t_ns > self._owner_ns:
-                self._wait_for_clock(t_ns)
-            elif self.real_time_factor is not None and t_ns % self.clock_period_ns == 0:
-                self._pace(wall + t_ns * 1e-9 / self.real_time_factor)
+            try:
+                self.sim.before(t_ns, wall, t_ns % self.clock_period_ns == 0)
+            except OwnerLeft:
+                self.stop_requested = True
             if self.stop_requested:
                 k -= 1
                 break
@@ -358,13 +284,7 @@ class Twin:
             if t_ns % self.clock_period_ns == 0:
                 msg = clock_msg(t_ns)
                 self.recorder.record('/clock', msg)
-                # on DDS: at every turn, and every period while a node outside the twin listens
-                # or the run is paced for one
-                if self.clock_pub is not None and (
-                        self._clock_wanted or self.real_time_factor is not None
-                        or t_ns % self.graph_period_ns == 0):
-                    self._clock_ns = t_ns
-                    self.clock_pub.publish(msg)
+                self.sim.publish(t_ns, msg, t_ns % self.graph_period_ns == 0)
             if k in faults:
                 self._inject(faults[k], t_ns)
             n_sub = self.n_sub if k < n_ticks else 0      # the end instant: evaluate only
@@ -385,10 +305,7 @@ class Twin:
                 on_tick(k, self)
         if k >= 0 and (k * self.period_ns) % self.graph_period_ns:
             self._sync_graph(k)         # a last turn at the end of the run (or at a stop)
-        if self.clock_pub is not None and self._clock_wanted:
-            # the followers' last tick waits for the last /clock: see it delivered before the
-            # publisher goes (bounded: a follower that has gone acknowledges nothing)
-            self.clock_pub.wait_for_all_acked(Duration(seconds=CLOCK_ACK_S))
+        self.sim.finish()
         wall = time.perf_counter() - wall
         result = TwinResult(valve_model=self.valve_model, scenario=self.scenario,
                             params=self.params, control_period=self.control_period,
@@ -421,7 +338,7 @@ class Twin:
             # dynamic friction beyond the static one raises FSJ with FDJ in one event pair,
             # and FDJ alone would be refused (FDJ > FSJ)
             result = node.set_parameters_atomically(
-                [_ros_param_value(e.param, e.value) for e in mine])
+                [ros_param_value(e.param, e.value) for e in mine])
             labels = ', '.join(dict.fromkeys(e.label for e in mine))
             if not result.successful:
                 raise TwinError(f'fault {labels} at {t_ns * 1e-9:.3f} s refused by '
@@ -433,107 +350,19 @@ class Twin:
             raise TwinError(f'fault {unread[0]} at {t_ns * 1e-9:.3f} s: no node of the twin '
                             'reads its parameter')
 
-    def _pace(self, due: float) -> None:
-        """Paced: wait until the wall clock reaches ``due`` (perf_counter seconds), in slices,
-        so that a stop request is seen within one."""
-        while not self.stop_requested:
-            ahead = due - time.perf_counter()
-            if ahead <= 0:
-                return
-            time.sleep(min(ahead, PACE_SLICE_S))
-
-    def _wait_for_followers(self) -> None:
-        """The owner: wait (until stopped) for ``followers`` twins following /clock, each
-        known by its ``twin_clock`` node in a namespace other than this twin's."""
-        said = False
-        while not self.stop_requested:
-            found = {i.node_namespace for i in self.clock.get_subscriptions_info_by_topic(
-                '/clock') if i.node_name == 'twin_clock'} - {self.namespace or '/'}
-            if len(found) >= self.followers:
-                return
-            if not said:
-                said = True
-                self.clock.get_logger().info(
-                    f'waiting for {self.followers} twin(s) following /clock '
-                    f'({len(found)} on the graph)')
-            time.sleep(PACE_SLICE_S)
-
-    def _wait_for_clock(self, t_ns: int) -> None:
-        """Following: let the executor take what arrives -- the owner's /clock among it --
-        until simulated time has reached ``t_ns``. Said once when the owner is slow to come;
-        the run stops (a readable bag) when an owner that was there leaves."""
-        start = time.perf_counter()
-        said = False
-        checked = start
-        while self._owner_ns < t_ns and not self.stop_requested:
-            self.executor.spin_once(timeout_sec=PACE_SLICE_S)
-            now = time.perf_counter()
-            if now - checked < OWNER_CHECK_S:
-                continue
-            checked = now
-            owners = self.clock.count_publishers('/clock')
-            if owners == 0 and self._owner_ns >= 0:
-                self.clock.get_logger().warning(
-                    f'the /clock owner left at {self._owner_ns * 1e-9:.3f} s of simulated '
-                    'time: stopping here')
-                self.stop_requested = True
-            elif not said:
-                said = True
-                self.clock.get_logger().info(
-                    f'waiting for /clock to reach {t_ns * 1e-9:.3f} s (this twin follows '
-                    f'the clock owner; {owners} publisher(s) of /clock seen)')
-
     def _sync_graph(self, k: int) -> None:
-        """Every graph period: note which topics have DDS subscribers, and let the executor
-        handle everything that has arrived up to the last /clock published -- the nodes'
-        /clock, parameter requests and their responses -- in one call.
-
-        The twin's own subscription to /clock marks the turn's end: the executor delivers in
-        arrival order, so once it has taken that message, all that arrived before has been
-        handled. (One ``spin_once`` of the EventsExecutor costs ~100 us here, ready event or
-        not, and waiting at every 10 ms /clock for its delivery to each node cost ~20 us per
-        tick, more than the physics.)"""
+        """Every graph period: note which topics have DDS subscribers, then give the executor
+        its turn (:meth:`GraphClock.take_turn`): the nodes' /clock, parameter requests and
+        their responses. (One ``spin_once`` of the EventsExecutor costs ~100 us here, ready
+        event or not, and waiting at every 10 ms /clock for its delivery to each node cost
+        ~20 us per tick, more than the physics.)"""
         for n in self.nodes:
             if isinstance(n, TwinNode):
                 n.refresh_subscribers()
-        # the twin's own /clock subscribers: every node's time source, and _on_clock
-        if self.clock_pub is not None:
-            self._clock_wanted = (self.clock_pub.get_subscription_count()
-                                  > len(self.nodes) + 1)
+        # the twin's own /clock subscribers: every node's time source, and the GraphClock's
+        self.sim.refresh(len(self.nodes) + 1)
         self._warn_foreign_publishers()
-        if self.follow:
-            # no /clock of our own: the turn ends at a message to itself sent now, queued
-            # behind everything that has arrived
-            self._turn = Future()
-            self._turn_pub.publish(Empty())
-            self.executor.spin_until_future_complete(self._turn, timeout_sec=TICK_DEADLINE_S)
-            if not self._turn.done():
-                raise TwinError(f'tick {k}: the executor did not take its turn within '
-                                f'{TICK_DEADLINE_S} s')
-            self._turn = None
-            return
-        if self._clock_ns == self._turned_ns:
-            return                      # that /clock was taken at the previous turn
-        self._turn = Future()
-        self.executor.spin_until_future_complete(self._turn, timeout_sec=TICK_DEADLINE_S)
-        if not self._turn.done():
-            raise TwinError(f'tick {k}: /clock at {self._clock_ns * 1e-9:.3f} s was not '
-                            f'delivered within {TICK_DEADLINE_S} s')
-        self._turn = None
-        self._turned_ns = self._clock_ns
-
-    def _on_clock(self, msg: Clock) -> None:
-        """The twin's own /clock subscription: it ends a turn (:meth:`_sync_graph`); following,
-        it is the owner's time."""
-        t_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
-        if self.follow:
-            self._owner_ns = max(self._owner_ns, t_ns)
-        elif self._turn is not None and t_ns >= self._clock_ns and not self._turn.done():
-            self._turn.set_result(t_ns)
-
-    def _on_turn(self, _msg: Empty) -> None:
-        if self._turn is not None and not self._turn.done():
-            self._turn.set_result(True)
+        self.sim.take_turn(k)
 
     def _warn_foreign_publishers(self) -> None:
         """Another graph on the same domain publishing the twin's topics cannot change the run
@@ -583,40 +412,6 @@ class Twin:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
-
-
-def _absolute_namespace(namespace: str) -> str:
-    """'left' or '/left' -> '/left', checked as ROS checks a namespace (one line otherwise)."""
-    ns = '/' + namespace.strip('/')
-    try:
-        validate_namespace(ns)
-    except InvalidNamespaceException as exc:
-        raise TwinError(f'namespace {namespace!r}: {" ".join(str(exc).split())[:200]}; '
-                        'expected names of letters, digits and _ separated by /') from None
-    return ns
-
-
-def _scenario_label(spec: Any, scenario: Scenario) -> str:
-    """What the schedule nodes' ``scenario`` parameter says: the name or file the twin was
-    given, or the scenario's own name when it was given as data."""
-    if isinstance(spec, (str, Path)):
-        return str(spec)
-    return scenario.name
-
-
-def _ros_param(name: str, params: EhaParams) -> Parameter:
-    """A node's ROS parameter for ``params``' value; a derived parameter left to its
-    derivation is 0.0, as the nodes declare it (so a fault on CLk still re-derives C4_alpha)."""
-    value = getattr(params, name)
-    return _ros_param_value(name, 0.0 if value is None else value)
-
-
-def _ros_param_value(name: str, value: Any) -> Parameter:
-    if isinstance(value, bool):
-        return Parameter(name, Parameter.Type.BOOL, value)
-    if isinstance(value, int):
-        return Parameter(name, Parameter.Type.INTEGER, value)
-    return Parameter(name, Parameter.Type.DOUBLE, float(value))
 
 
 def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',

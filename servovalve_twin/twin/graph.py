@@ -1,0 +1,228 @@
+"""A twin's place on the ROS graph: its executor (:data:`EXECUTORS`) and its simulated time
+(:class:`GraphClock`): ``/clock`` published by the
+twin that owns it, or followed from another owner; pacing to a real-time factor; the owner's
+wait for its followers; and the executor's turns, which end at a message the turn itself sent.
+
+One ``/clock`` per graph, one owner: several actuators (twins in their own namespaces) share one
+simulated time by following the owner -- a follower runs each tick once ``/clock`` has reached
+it, so its results do not depend on the owner's pace.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Callable
+
+from rclpy.duration import Duration
+from rclpy.context import Context
+from rclpy.exceptions import InvalidNamespaceException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+from rclpy.validate_namespace import validate_namespace
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Empty
+
+from ..errors import TwinError
+from ..nodes.topics import QOS
+
+#: the longest wait for a turn of the executor
+TICK_DEADLINE_S = 5.0
+#: the longest sleep between two looks at a stop request (pacing, following)
+PACE_SLICE_S = 0.05
+#: following: how often (wall) a twin waiting for /clock checks that the owner is still there
+OWNER_CHECK_S = 2.0
+#: how long the clock owner waits at the end for its last /clock to reach the followers
+CLOCK_ACK_S = 2.0
+#: /clock from its owner: the latest time is all that counts, and a follower that joins late
+#: (discovery) is handed it at once (transient local); rclpy's time sources (best effort,
+#: volatile) match it
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def _events_executor(*, context: Context):
+    """rclpy's EventsExecutor calls ``faulthandler.enable()`` on ``sys.stderr``, which fails
+    where stderr is not a real file (Jupyter, pytest's capture): hand it the process's own."""
+    try:
+        sys.stderr.fileno()
+        return EventsExecutor(context=context)
+    except (AttributeError, OSError, ValueError):
+        saved, sys.stderr = sys.stderr, sys.__stderr__
+        try:
+            return EventsExecutor(context=context)
+        finally:
+            sys.stderr = saved
+
+
+#: rclpy's EventsExecutor was measured 8x cheaper per tick than the SingleThreadedExecutor
+#: here (bench/bench_twin.py); the latter is kept for comparison.
+EXECUTORS = {'events': _events_executor, 'single': SingleThreadedExecutor}
+
+
+class GraphClock:
+    """``/clock`` for one twin, on its ``twin_clock`` node.
+
+    :param follow: follow another owner's /clock instead of publishing it
+    :param real_time_factor: pace simulated time to it (None: as fast as possible)
+    :param followers: the owner starts once this many following twins are on the graph
+    :param namespace: the twin's namespace ('' or '/left'), to tell its followers from itself
+    :param stopped: whether a stop was requested (checked while waiting)
+    """
+
+    def __init__(self, node: Node, *, follow: bool, real_time_factor: float | None,
+                 followers: int, namespace: str, stopped: Callable[[], bool]):
+        self.node = node
+        self.follow = follow
+        self.real_time_factor = real_time_factor
+        self.followers = followers
+        self.namespace = namespace
+        self.stopped = stopped
+        self.executor = None            # set by the twin once its executor exists
+        self.pub = None if follow else node.create_publisher(Clock, '/clock', CLOCK_QOS)
+        self.owner_ns = -1              # the latest /clock seen (the owner's, following)
+        self.published_ns = -1          # the last /clock published on DDS
+        self.turned_ns = -1             # ... and taken by the executor
+        #: a node outside the twin subscribes to /clock (refreshed at every turn)
+        self.wanted = True
+        self._turn: Future | None = None
+        node.create_subscription(Clock, '/clock', self._on_clock, CLOCK_QOS if follow else QOS)
+        if follow:
+            # a follower's turns end at a message to itself on a hidden topic (no /clock of
+            # its own to wait on; EventsExecutor takes no guard condition)
+            self._turn_pub = node.create_publisher(Empty, '~/_turn', QOS)
+            node.create_subscription(Empty, '~/_turn', self._on_turn, QOS)
+
+    # -- before and at a tick ----------------------------------------------------------------
+    def before(self, t_ns: int, wall0: float, on_clock_period: bool) -> None:
+        """Wait until tick ``t_ns`` may run: following, until /clock has reached it; paced,
+        until the wall clock has (``wall0``: the run's start, perf_counter seconds)."""
+        if self.follow and t_ns > self.owner_ns:
+            self._wait_for_clock(t_ns)
+        elif self.real_time_factor is not None and on_clock_period:
+            self._pace(wall0 + t_ns * 1e-9 / self.real_time_factor)
+
+    def publish(self, t_ns: int, msg: Clock, turn_due: bool) -> None:
+        """/clock on DDS: at every turn of the executor, and every clock period while a node
+        outside the twin listens or the run is paced for one."""
+        if self.pub is not None and (self.wanted or self.real_time_factor is not None
+                                     or turn_due):
+            self.published_ns = t_ns
+            self.pub.publish(msg)
+
+    def refresh(self, own_subscribers: int) -> None:
+        """Whether something beyond the twin's own ``own_subscribers`` listens to /clock."""
+        if self.pub is not None:
+            self.wanted = self.pub.get_subscription_count() > own_subscribers
+
+    def take_turn(self, k: int) -> None:
+        """Let the executor handle everything that has arrived -- the nodes' /clock,
+        parameter requests and their responses -- in one call, until it takes the message
+        that marks the turn's end (the last /clock published; following, a message to
+        itself): the executor delivers in arrival order, so all that came before is done."""
+        if self.follow:
+            self._turn = Future()
+            self._turn_pub.publish(Empty())
+            what = 'its turn'
+        elif self.published_ns == self.turned_ns:
+            return                      # that /clock was taken at the previous turn
+        else:
+            self._turn = Future()
+            what = f'/clock at {self.published_ns * 1e-9:.3f} s'
+        self.executor.spin_until_future_complete(self._turn, timeout_sec=TICK_DEADLINE_S)
+        if not self._turn.done():
+            raise TwinError(f'tick {k}: the executor did not take {what} within '
+                            f'{TICK_DEADLINE_S} s')
+        self._turn = None
+        self.turned_ns = self.published_ns
+
+    def finish(self) -> None:
+        """The owner at the end: its followers' last tick waits for the last /clock, so see
+        it delivered before the publisher goes (bounded: a follower that has gone
+        acknowledges nothing)."""
+        if self.pub is not None and self.wanted:
+            self.pub.wait_for_all_acked(Duration(seconds=CLOCK_ACK_S))
+
+    # -- waiting ------------------------------------------------------------------------------
+    def wait_for_followers(self) -> None:
+        """The owner: wait (until stopped) for ``followers`` twins following /clock, each
+        known by its ``twin_clock`` node in a namespace other than this twin's."""
+        said = False
+        while self.followers and not self.stopped():
+            found = {i.node_namespace for i in self.node.get_subscriptions_info_by_topic(
+                '/clock') if i.node_name == 'twin_clock'} - {self.namespace or '/'}
+            if len(found) >= self.followers:
+                return
+            if not said:
+                said = True
+                self.node.get_logger().info(
+                    f'waiting for {self.followers} twin(s) following /clock '
+                    f'({len(found)} on the graph)')
+            time.sleep(PACE_SLICE_S)
+
+    def _pace(self, due: float) -> None:
+        """Wait until the wall clock reaches ``due``, in slices, so that a stop request is
+        seen within one."""
+        while not self.stopped():
+            ahead = due - time.perf_counter()
+            if ahead <= 0:
+                return
+            time.sleep(min(ahead, PACE_SLICE_S))
+
+    def _wait_for_clock(self, t_ns: int) -> None:
+        """Following: let the executor take what arrives -- the owner's /clock among it --
+        until simulated time has reached ``t_ns``. Said once when the owner is slow to come;
+        raises :class:`OwnerLeft` when an owner that was there leaves."""
+        said = False
+        checked = time.perf_counter()
+        while self.owner_ns < t_ns and not self.stopped():
+            self.executor.spin_once(timeout_sec=PACE_SLICE_S)
+            now = time.perf_counter()
+            if now - checked < OWNER_CHECK_S:
+                continue
+            checked = now
+            owners = self.node.count_publishers('/clock')
+            if owners == 0 and self.owner_ns >= 0:
+                self.node.get_logger().warning(
+                    f'the /clock owner left at {self.owner_ns * 1e-9:.3f} s of simulated '
+                    'time: stopping here')
+                raise OwnerLeft
+            if not said:
+                said = True
+                self.node.get_logger().info(
+                    f'waiting for /clock to reach {t_ns * 1e-9:.3f} s (this twin follows '
+                    f'the clock owner; {owners} publisher(s) of /clock seen)')
+
+    # -- callbacks ----------------------------------------------------------------------------
+    def _on_clock(self, msg: Clock) -> None:
+        t_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        if self.follow:
+            self.owner_ns = max(self.owner_ns, t_ns)
+        elif self._turn is not None and t_ns >= self.published_ns and not self._turn.done():
+            self._turn.set_result(t_ns)
+
+    def _on_turn(self, _msg: Empty) -> None:
+        if self._turn is not None and not self._turn.done():
+            self._turn.set_result(True)
+
+
+class OwnerLeft(Exception):
+    """The /clock owner a twin followed has left the graph."""
+
+
+def absolute_namespace(namespace: str) -> str:
+    """'left' or '/left' -> '/left', checked as ROS checks a namespace (one line otherwise)."""
+    ns = '/' + namespace.strip('/')
+    try:
+        validate_namespace(ns)
+    except InvalidNamespaceException as exc:
+        raise TwinError(f'namespace {namespace!r}: {" ".join(str(exc).split())[:200]}; '
+                        'expected names of letters, digits and _ separated by /') from None
+    return ns
+
+
+__all__ = ['EXECUTORS', 'GraphClock', 'OwnerLeft', 'absolute_namespace', 'CLOCK_QOS', 'TICK_DEADLINE_S']
