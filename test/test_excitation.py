@@ -13,7 +13,8 @@ from servovalve_twin.physics.faults import FAULTS, combine
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.physics.scenario import scenario_from_dict
 from servovalve_twin.prognostics.calibration import NOISE, severity_at, to_g
-from servovalve_twin.prognostics.diagnosis import DETECTABLE, RESIDUAL_SCALE, diagnose
+from servovalve_twin.prognostics.diagnosis import DETECTABLE, diagnose
+from servovalve_twin.prognostics.fitting import RESIDUAL_SCALE
 from servovalve_twin.prognostics.excitation import (EVIDENCE, Excitation, RigLimits,
                                                     bit_scenario, design_bit, kappa)
 from servovalve_twin.runs import simulate

@@ -37,7 +37,7 @@ Confidence. A severity's 95 % interval comes from the fit's Jacobian, ``cov = s^
 hypothesis' own residuals: about ``n`` for a fit that leaves only white noise, so that the
 interval is then the spread of repeated flights (tested) -- or the catalog's bounds where the
 residuals do not move with the severity at the fit. The verdict's is joined with the
-likelihood-ratio interval along its severity (:func:`_ratio_interval`): a fit that stops on a
+likelihood-ratio interval along its severity (:func:`.fitting.ratio_interval`): a fit that stops on a
 flat stretch of the cost -- static friction beyond the break-away the run reaches -- has a
 zero Jacobian there and a Jacobian interval of zero width. With ``bootstrap`` = N, the
 verdict's interval is instead from N refits to the fitted signals plus moving blocks (50 ms)
@@ -56,42 +56,27 @@ with one degradation level (prognosis). A fault that appears mid-run is diagnose
 after its onset, with the model run faulty from the start -- a bias for faults that change the
 state before the window -- unless ``start`` (after the onset) has the model start from the
 recorded jack state there, as the live estimator does; ``onset`` fits the instant it began
-(:func:`_fit_onset`). What the answer's confidence counts -- the model-form calibration, the
+(:func:`.onset.fit_onset`). What the answer's confidence counts -- the model-form calibration, the
 goodness of fit, identifiability -- is doc/explanation/diagnosis.md.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import ModelError, TwinError
-from ..physics.faults import FAULTS, combine
+from ..errors import TwinError
+from ..physics.faults import FAULTS
 from ..physics.params import PARAM_FIELDS, PARAM_NAMES, EhaParams
-from ..physics.scenario import Profile, Scenario
-from ..physics.simulate import simulate
-from ..physics.signals import MEASURED
-from ..physics.valves import get_monitor_model
+from .fitting import (SIGNALS, Problem, bootstrap_intervals, effective_n, fit, jacobian_interval,
+                      ratio_interval, start_grid)
+from .verdict import HEALTHY, UNEXPLAINED, Candidate, Diagnosis
 
 #: the catalog faults a simplified model can see (HD's geometry, e.g. clearance, it has not)
 DIAGNOSABLE = tuple(n for n, f in FAULTS.items()
                     if PARAM_FIELDS[f.param].metadata['group'] != 'hd')
-SIGNALS = MEASURED
-#: residual scales [SI]: about SQ's RMS error against HD on the paper scenario
-#: (doc/results/against-hd.md)
-RESIDUAL_SCALE = {'xj': 2.0e-4, 'dxj': 3.0e-3, 'p12': 2.0e5}
-#: nuisance factors on the design values
-FREE_BOUNDS = (0.5, 2.0)
-BLOCK_ROWS = 50
-HEALTHY = 'healthy'
-UNEXPLAINED = 'unexplained'
-#: catalog faults a simplified model cannot hypothesise (HD geometry it has not), and the
-#: verdicts they are read as (measured on HD units, bench/bench_diagnosis.py: clearance growth
-#: as leakage growth or supply loss): such a verdict says it is also consistent with them
-CONFUSABLE = {'leakage_growth': ('clearance_growth',), 'supply_loss': ('clearance_growth',)}
 #: no hypothesis explains a run whose best fit's RMS exceeds UNEXPLAINED_FACTOR times the
 #: REFERENCE_QUANTILE of the right hypotheses' fits in the calibration set (the quantile, not
 #: the maximum: a few fits of the set itself stop in a wrong valley)
@@ -116,256 +101,6 @@ SECOND_FAULT_EVIDENCE = 20.0
 SECOND_FAULT_SIZE = 0.3
 
 
-@dataclasses.dataclass
-class Candidate:
-    """One hypothesis fitted: ``fault`` (or 'healthy'), its severity and 95 % interval, the
-    information criterion (``score``, lower is better), RSS, nuisance factors."""
-
-    fault: str
-    severity: float | list[float] | None      # a list for a pair, one per fault
-    interval: tuple[float, float] | list[tuple[float, float]] | None
-    score: float
-    rss: float
-    free: dict[str, float]
-    fitted: dict[str, np.ndarray]
-    #: the fit's own severity and 95 % interval, before a model-form correction replaced them
-    raw: tuple[Any, Any] | None = None
-
-    @property
-    def faults(self) -> tuple[str, ...]:
-        """The catalog faults of the hypothesis: () for healthy, one, or two for a pair."""
-        return () if self.fault == HEALTHY else tuple(self.fault.split('+'))
-
-    @property
-    def severities(self) -> list[float]:
-        """One severity per fault of :attr:`faults` (a single fault's as a list of one)."""
-        if self.severity is None:
-            return []
-        return self.severity if isinstance(self.severity, list) else [self.severity]
-
-    @property
-    def intervals(self) -> list[tuple[float, float]]:
-        """One interval per fault of :attr:`faults`."""
-        if self.interval is None:
-            return []
-        return self.interval if isinstance(self.interval, list) else [self.interval]
-
-    def to_json(self) -> dict[str, Any]:
-        return dict(fault=self.fault, severity=self.severity,
-                    interval=_interval_json(self.interval), score=self.score)
-
-
-def _interval_json(interval):
-    if interval is None:
-        return None
-    if isinstance(interval, list):
-        return [list(i) for i in interval]
-    return list(interval)
-
-
-@dataclasses.dataclass
-class Diagnosis:
-    model: str
-    window: tuple[float, float]
-    candidates: list[Candidate]          # best first
-    n_eff: float
-    evaluations: int
-    recorded: dict[str, np.ndarray]
-    #: what was assumed or doubted (one line each), in the JSON and on stderr
-    warnings: list[str] = dataclasses.field(default_factory=list)
-    #: 'unexplained' when no hypothesis fits as a right one does (or the nominal parameters
-    #: are unknown); otherwise the best candidate's name
-    verdict: str = ''
-    #: the goodness of fit of the best candidate: its RMS of normalised residuals and the
-    #: share of right fits in the calibration set that fitted as badly (None: no calibration)
-    fit_rms: float = math.nan
-    p_value: float | None = None
-    fit_limit: float | None = None               # the RMS beyond which it is unexplained
-    #: the verdict interval's confidence and what it counts
-    confidence: float = 0.95
-    interval_counts: str = 'measurement noise'
-    #: the model-form calibration applied (None: none, the intervals count the noise only),
-    #: and the calibration scenario whose own entries it used (None: the pooled ones)
-    calibration: dict[str, Any] | None = None
-    calibration_scenario: str | None = None
-    #: when the verdict's fault began ({'t', 'interval'} [s]), None: from the start (or not
-    #: asked)
-    onset: dict[str, Any] | None = None
-    #: per fault of the verdict: '' where the data pin its severity, else the one-sided bound
-    #: they support ('static_friction >= 12.3': the likelihood is flat beyond)
-    bounds: list[str] = dataclasses.field(default_factory=list)
-
-    @property
-    def identifiable(self) -> bool:
-        return not any(self.bounds)
-
-    @property
-    def also_consistent_with(self) -> list[str]:
-        """Catalog faults outside the hypotheses that the verdict cannot be told from."""
-        if self.verdict:
-            return []
-        return sorted({o for f in self.best.faults for o in CONFUSABLE.get(f, ())})
-
-    @property
-    def best(self) -> Candidate:
-        return self.candidates[0]
-
-    def to_json(self) -> dict[str, Any]:
-        """The JSON of `diagnose --json`: the verdict first, every candidate after it."""
-        b = self.best
-        unexplained = self.verdict == UNEXPLAINED
-        return dict(fault=self.verdict or b.fault,
-                    severity=None if unexplained else b.severity,
-                    interval=None if unexplained else _interval_json(b.interval),
-                    confidence=self.confidence, interval_counts=self.interval_counts,
-                    fit=dict(rms=self.fit_rms, p_value=self.p_value, limit=self.fit_limit),
-                    identifiable=self.identifiable, bounds=[b for b in self.bounds if b],
-                    also_consistent_with=self.also_consistent_with,
-                    onset=None if unexplained else self.onset,
-                    candidates=[c.to_json() for c in self.candidates], model=self.model,
-                    window=list(self.window), warnings=list(self.warnings))
-
-
-class _Problem:
-    """The recorded run cut to the window, and the model run for one parameter set."""
-
-    def __init__(self, signals: Mapping[str, np.ndarray], design: EhaParams, model: str,
-                 control_period: float, window: tuple[float, float] | None,
-                 start: float | None = None):
-        missing = [s for s in ('t', 'com', 'fr', 'psr') + SIGNALS
-                   if s not in signals or not np.all(np.isfinite(signals[s]))]
-        if missing:
-            raise TwinError(f'the run lacks {", ".join(missing)} (a diagnosis needs the '
-                            'recorded /com, /fr, /psr, /xj, /dxj and /p12 at every 1 ms row)')
-        get_monitor_model(model)
-        self.model = model
-        # derived parameters (C4_alpha from CLk, ...) derive again under each hypothesis, as
-        # they do when the twin injects a fault; a bag's provenance lists them resolved
-        self.design = design.replace(**{n: None for n in PARAM_NAMES
-                                        if PARAM_FIELDS[n].default is None})
-        self.control_period = control_period
-        t = np.asarray(signals['t'], dtype=float)
-        ms = np.rint(t * 1000).astype(np.int64)
-        t_last = ms[-1] / 1000
-        t0, t1 = window if window is not None else (0.0, t_last)
-        if not (0.0 <= t0 < t1 <= t_last + 1e-9):
-            raise TwinError(f'window {t0:g}:{t1:g} s lies outside the run [0, {t_last:g}] s '
-                            '(T0 < T1 needed)')
-        self.window = (float(t0), float(t1))
-        start = 0.0 if start is None else float(start)
-        if not 0.0 <= start <= t0 + 1e-9:
-            raise TwinError(f'start {start:g} s must lie in [0, {t0:g}] (the window start)')
-        n_end = int(round(t1 * 1000))
-        n_start = int(round(start * 1000))
-        # the model runs from `start`, time shifted to 0, from the recorded jack state there
-        # (the spool and flapper from rest: they settle within milliseconds); a whole run
-        # starts at rest, where this is the rest state itself
-        self.initial = {s: float(signals[s][n_start]) for s in ('xj', 'dxj')}
-        # inputs in force from each 1 ms row on (piecewise constant, as the twin holds them)
-        profiles = {s: Profile('steps', tuple(zip(((ms[n_start:n_end + 1] - n_start) / 1000
-                                                   ).tolist(),
-                                                  np.asarray(signals[s][n_start:n_end + 1],
-                                                             dtype=float).tolist())))
-                    for s in ('com', 'fr', 'psr')}
-        self.scenario = Scenario(name='recorded', duration=(n_end - n_start) / 1000, **profiles)
-        keep = (ms >= int(round(t0 * 1000))) & (ms <= n_end)
-        self.rows = np.flatnonzero(keep)
-        self.model_rows = self.rows - n_start
-        self.recorded = {s: np.asarray(signals[s], dtype=float)[self.rows] for s in SIGNALS}
-        self.t = t[self.rows]
-        self.evaluations = 0
-        self._runs: dict[tuple, dict[str, np.ndarray] | None] = {}
-        self.t_start = n_start / 1000                  # run time of the model's t = 0
-
-    def params(self, faults: Sequence[str], severities: Sequence[float],
-               free: Mapping[str, float]) -> EhaParams:
-        nominal = self.design.replace(**{k: self.design.value(k) * v for k, v in free.items()})
-        return combine(nominal, dict(zip(faults, severities)))
-
-    def run(self, params: EhaParams, events: tuple = ()) -> dict[str, np.ndarray] | None:
-        """The model's window rows for ``params`` (None if the model failed); each parameter
-        set runs once -- the fitted signals of a hypothesis are those of its last solver
-        evaluations, not a run more. ``events``: faults scheduled during the run, ``(at [s,
-        run time], fault, severity)`` each (an onset)."""
-        key = (params, events)
-        if key not in self._runs:
-            self.evaluations += 1
-            scn = self.scenario if not events else dataclasses.replace(
-                self.scenario, faults=tuple(dict(at=at - self.t_start, fault=f, severity=sev)
-                                            for at, f, sev in events))
-            try:
-                r = simulate(self.model, scn, params=params, ecu_period=self.control_period,
-                             initial=self.initial)
-                self._runs[key] = {s: r[s][self.model_rows] for s in SIGNALS}
-            except ModelError:
-                self._runs[key] = None
-        return self._runs[key]
-
-    def residuals(self, fitted: dict[str, np.ndarray] | None,
-                  recorded: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
-        recorded = self.recorded if recorded is None else recorded
-        if fitted is None:                      # the model failed here: far from any fit
-            return np.full(len(SIGNALS) * len(self.rows), 1e3)
-        return np.concatenate([(fitted[s] - recorded[s]) / RESIDUAL_SCALE[s] for s in SIGNALS])
-
-
-def _start_grid(name: str, n: int = 7) -> list[float]:
-    """Severities to start from: geometric for multipliers, even for fractions and values."""
-    f = FAULTS[name]
-    if f.kind == 'scale':
-        grid = [f.lo * (f.hi / f.lo) ** q for q in np.linspace(0.0, 1.0, n)]
-    else:
-        grid = list(np.linspace(f.lo, f.hi, n))
-    return [float(g) for g in grid]
-
-
-def _effective_n(res: np.ndarray, n_signals: int) -> float:
-    """n*(1 - rho)/(1 + rho) with rho the mean lag-1 autocorrelation of each signal's
-    residual (AR(1)); at least 10."""
-    rhos = []
-    for r in np.split(res, n_signals):
-        r = r - r.mean()
-        den = float(np.dot(r, r))
-        rhos.append(float(np.dot(r[1:], r[:-1])) / den if den > 0 else 0.0)
-    rho = min(max(float(np.mean(rhos)), 0.0), 0.999)
-    return max(10.0, len(res) * (1.0 - rho) / (1.0 + rho))
-
-
-def _fit(problem: _Problem, faults: Sequence[str], free: Sequence[str],
-         recorded: Mapping[str, np.ndarray] | None = None,
-         starts: Sequence[Sequence[float]] | None = None):
-    """Least squares over the faults' severities + nuisance factors; returns (x, residuals,
-    jacobian). ``starts``: candidate start points, the best of which is refined (default: a
-    coarse grid of a single fault's severity, nuisance at design values)."""
-    from scipy.optimize import least_squares
-    specs = [FAULTS[f] for f in faults]
-    nf = len(specs)
-    lo = [f.lo for f in specs] + [FREE_BOUNDS[0]] * len(free)
-    hi = [f.hi for f in specs] + [FREE_BOUNDS[1]] * len(free)
-
-    def fun(x):
-        fr = {k: float(v) for k, v in zip(free, x[nf:])}
-        return problem.residuals(problem.run(problem.params(faults, [float(v) for v in x[:nf]],
-                                                            fr)), recorded)
-
-    if not lo:                                   # healthy, nothing free: no fit to make
-        return np.zeros(0), fun(np.zeros(0)), np.zeros((len(problem.rows) * 3, 0))
-    if starts is None:
-        design = [1.0] * len(free)
-        starts = [[g] + design for g in _start_grid(faults[0])] if nf == 1 else [
-            [FAULTS[f].healthy for f in faults] + design]
-    starts = [np.clip(np.asarray(x, dtype=float), lo, hi) for x in starts]
-    if len(starts) > 1:
-        costs = [float(np.sum(fun(x) ** 2)) for x in starts]
-        x0 = starts[int(np.argmin(costs))]
-    else:
-        x0 = starts[0]
-    scale = [(h - l) / 10.0 for l, h in zip(lo, hi)]
-    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-3,
-                        method='trf', xtol=1e-6, ftol=1e-8, max_nfev=60 * max(1, nf))
-    return sol.x, sol.fun, sol.jac
-
-
 def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_period: float,
              model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
              window: tuple[float, float] | None = None, free: Sequence[str] = (),
@@ -386,49 +121,17 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         the calibrated model-form spread (a 90 % interval) and test the goodness of fit
         (:mod:`.calibration`); False when the run is the fitted model's own (the model is
         exact) or to calibrate
-    :param onset: also fit when a single-fault verdict began (see :func:`_fit_onset`)
+    :param onset: also fit when a single-fault verdict began (see :func:`.onset.fit_onset`)
     :param scenario: the calibration scenario the run flew (``'bit'``, ``'paper'``), whose own
         model-form calibration then applies (:func:`.calibration.fault_calibration`); a bag's
         is found by :func:`..apps.diagnose.calibration_scenario`
     """
-    for f in faults:
-        if f not in FAULTS:
-            raise TwinError(f'unknown fault {f!r}; expected one of {list(DIAGNOSABLE)}')
-        if f not in DIAGNOSABLE:
-            raise TwinError(f'fault {f!r} acts on HD geometry a simplified model does not '
-                            f'have; expected one of {list(DIAGNOSABLE)}')
-    for p in free:
-        if p not in PARAM_NAMES:
-            raise TwinError(f'--free: unknown parameter {p!r}')
-    if any(FAULTS[f].param in free for f in faults):
-        raise TwinError('--free names a parameter a fault hypothesis estimates')
-    # catalog order, so that a pair has one name whatever order the user gave
-    faults = [f for f in DIAGNOSABLE if f in set(faults)]
-    if pairs and len(faults) < 2:
-        raise TwinError('--pairs needs at least two faults to pair')
+    faults = _hypotheses(faults, free, pairs)
     free = list(free)
-    problem = _Problem(signals, design, model, control_period, window, start)
-    results = [((), *_fit(problem, (), free))]
-    singles = {}
-    for fault in faults:
-        x, res, jac = _fit(problem, (fault,), free)
-        singles[fault] = x
-        results.append(((fault,), x, res, jac))
-    if pairs:
-        for i, a in enumerate(faults):
-            for b in faults[i + 1:]:
-                # the best of a coarse grid over both severities and of the two singles'
-                # optima: a fault near healthy has a flat gradient, and one fault can take on
-                # much of the other's effect, so a fit started from the singles alone stays in
-                # the wrong valley (leakage beside a supply loss does)
-                xa, xb = singles[a], singles[b]
-                nuis = list((xa[1:] + xb[1:]) / 2)
-                starts = [[xa[0], xb[0]] + nuis] + [
-                    [ga, gb] + [1.0] * len(free)
-                    for ga in _start_grid(a, PAIR_GRID) for gb in _start_grid(b, PAIR_GRID)]
-                results.append(((a, b), *_fit(problem, (a, b), free, starts=starts)))
+    problem = Problem(signals, design, model, control_period, window, start)
+    results, singles = _fit_hypotheses(problem, faults, free, pairs)
     n = len(results[0][2])
-    n_eff = _effective_n(results[0][2], len(SIGNALS))
+    n_eff = effective_n(results[0][2], len(SIGNALS))
     candidates = [_candidate(problem, *r, free, n, n_eff) for r in results]
     candidates.sort(key=lambda c: c.score)
     # the verdict: the best-scoring hypothesis that is healthy or of faults of a size worth
@@ -447,19 +150,20 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
             candidates.insert(1, second)
     if best.fault != HEALTHY:
         hyp, x, res, jac = next(r for r in results if '+'.join(r[0]) == best.fault)
-        n_own = _effective_n(res, len(SIGNALS))
-        ivs = [_ratio_interval(problem, hyp, i, x, free, res, n, n_own, jac)
+        n_own = effective_n(res, len(SIGNALS))
+        ivs = [ratio_interval(problem, hyp, i, x, free, res, n, n_own, jac)
                for i in range(len(hyp))]
         best.interval = ivs[0] if len(ivs) == 1 else ivs
         bounds = [_one_sided(f, iv) for f, iv in zip(hyp, ivs)]
     else:
         bounds = []
-    onset_fit = _fit_onset(problem, candidates, n, n_eff) if onset else None
+    from .onset import fit_onset
+    onset_fit = fit_onset(problem, candidates, n, n_eff) if onset else None
     if onset_fit is not None:
         best, bounds = candidates[0], ['']
     # (the bootstrap refits faults present from the start: not an onset's)
     if bootstrap and best.fault != HEALTHY and onset_fit is None:
-        boot = _bootstrap_intervals(problem, best, free, bootstrap, seed)
+        boot = bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
                   evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
@@ -479,7 +183,52 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     return d
 
 
-def _candidate(problem: _Problem, hyp: tuple[str, ...], x: np.ndarray, res: np.ndarray,
+def _hypotheses(faults: Sequence[str], free: Sequence[str], pairs: bool) -> list[str]:
+    """The faults to hypothesise, checked, in catalog order (so that a pair has one name
+    whatever order the user gave)."""
+    for f in faults:
+        if f not in FAULTS:
+            raise TwinError(f'unknown fault {f!r}; expected one of {list(DIAGNOSABLE)}')
+        if f not in DIAGNOSABLE:
+            raise TwinError(f'fault {f!r} acts on HD geometry a simplified model does not '
+                            f'have; expected one of {list(DIAGNOSABLE)}')
+    for p in free:
+        if p not in PARAM_NAMES:
+            raise TwinError(f'--free: unknown parameter {p!r}')
+    if any(FAULTS[f].param in free for f in faults):
+        raise TwinError('--free names a parameter a fault hypothesis estimates')
+    faults = [f for f in DIAGNOSABLE if f in set(faults)]
+    if pairs and len(faults) < 2:
+        raise TwinError('--pairs needs at least two faults to pair')
+    return faults
+
+
+def _fit_hypotheses(problem: Problem, faults: Sequence[str], free: list[str], pairs: bool):
+    """Healthy, each single fault and (``pairs``) each two: ``[(hypothesis, x, residuals,
+    jacobian), ...]`` and each single fault's optimum."""
+    results = [((), *fit(problem, (), free))]
+    singles = {}
+    for fault in faults:
+        x, res, jac = fit(problem, (fault,), free)
+        singles[fault] = x
+        results.append(((fault,), x, res, jac))
+    if pairs:
+        for i, a in enumerate(faults):
+            for b in faults[i + 1:]:
+                # the best of a coarse grid over both severities and of the two singles'
+                # optima: a fault near healthy has a flat gradient, and one fault can take on
+                # much of the other's effect, so a fit started from the singles alone stays in
+                # the wrong valley (leakage beside a supply loss does)
+                xa, xb = singles[a], singles[b]
+                nuis = list((xa[1:] + xb[1:]) / 2)
+                starts = [[xa[0], xb[0]] + nuis] + [
+                    [ga, gb] + [1.0] * len(free)
+                    for ga in start_grid(a, PAIR_GRID) for gb in start_grid(b, PAIR_GRID)]
+                results.append(((a, b), *fit(problem, (a, b), free, starts=starts)))
+    return results, singles
+
+
+def _candidate(problem: Problem, hyp: tuple[str, ...], x: np.ndarray, res: np.ndarray,
                jac: np.ndarray, free: Sequence[str], n: int, n_eff: float) -> Candidate:
     """A fitted hypothesis as a candidate: its score, severities, Jacobian intervals."""
     rss = float(np.dot(res, res))
@@ -487,8 +236,8 @@ def _candidate(problem: _Problem, hyp: tuple[str, ...], x: np.ndarray, res: np.n
     sevs = [float(v) for v in x[:len(hyp)]]
     # the interval's correlation is that of the hypothesis' own residuals: white where the
     # model fits but for noise, strongly correlated where it cannot follow
-    n_own = _effective_n(res, len(SIGNALS))
-    intervals = [_jacobian_interval(f, i, x, res, jac, n, n_own) or (FAULTS[f].lo, FAULTS[f].hi)
+    n_own = effective_n(res, len(SIGNALS))
+    intervals = [jacobian_interval(f, i, x, res, jac, n, n_own) or (FAULTS[f].lo, FAULTS[f].hi)
                  for i, f in enumerate(hyp)]
     freev = dict(zip(free, x[len(hyp):].tolist()))
     fitted = problem.run(problem.params(hyp, sevs, freev))
@@ -501,7 +250,7 @@ def _candidate(problem: _Problem, hyp: tuple[str, ...], x: np.ndarray, res: np.n
     return Candidate('+'.join(hyp) or HEALTHY, sev, interval, score, rss, freev, fitted or {})
 
 
-def _second_fault(problem: _Problem, best: Candidate, singles: Mapping[str, np.ndarray],
+def _second_fault(problem: Problem, best: Candidate, singles: Mapping[str, np.ndarray],
                   candidates: Sequence[Candidate], free: Sequence[str], n: int, n_eff: float
                   ) -> Candidate | None:
     """Without ``pairs``: is a single-fault verdict really two faults? Screened first, one
@@ -539,7 +288,7 @@ def _second_fault(problem: _Problem, best: Candidate, singles: Mapping[str, np.n
             continue
         xa, xb = singles[hyp[0]], singles[hyp[1]]
         start = [xa[0], xb[0]] + list((xa[1:] + xb[1:]) / 2)
-        cand = _candidate(problem, hyp, *_fit(problem, hyp, free, starts=[start]), free, n,
+        cand = _candidate(problem, hyp, *fit(problem, hyp, free, starts=[start]), free, n,
                           n_eff)
         # both faults of at least the mild size: a second fault fitted near the detection
         # floor is absorbing the model's mismatch and the nuisance, not a fault
@@ -615,110 +364,6 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
     return est, iv, float(min(rel, 0.5))
 
 
-#: the onset screen: candidate instants over the window per single-fault hypothesis (the
-#: best is then refined by golden section), and severities each instant's fit may start from
-ONSET_GRID = 9
-ONSET_STARTS = 5
-
-
-class _OnsetProfile:
-    """One fault's severity refitted with the fault starting at each tried instant tau."""
-
-    def __init__(self, problem: _Problem, cand: Candidate):
-        self.problem, self.cand = problem, cand
-        self.fault = cand.faults[0]
-        self.nominal = problem.params((), [], cand.free)
-        self.fits: dict[float, tuple[float, float, Any]] = {}
-
-    def cost(self, tau: float) -> float:
-        from scipy.optimize import least_squares
-        tau = round(float(tau), 4)
-        if tau not in self.fits:
-            spec = FAULTS[self.fault]
-
-            def fun(x):
-                return self.problem.residuals(self.problem.run(
-                    self.nominal, ((tau, self.fault, float(x[0])),)))
-            # started from the best of the from-start fit and a coarse grid: the cost can be
-            # far from convex (a supply loss from 0.6 s: RSS 1.9e5 at 0.2, 2.8e4 at the true
-            # 0.3, 2.7e6 at 0.4), and from the from-start fit (near 0) the solver stalled
-            starts = [min(max(float(self.cand.severity), spec.lo), spec.hi)] + _start_grid(
-                self.fault, ONSET_STARTS)
-            x0 = min(starts, key=lambda v: float(np.sum(fun([v]) ** 2)))
-            sol = least_squares(fun, [x0], bounds=([spec.lo], [spec.hi]),
-                                x_scale=[(spec.hi - spec.lo) / 10.0], diff_step=1e-3,
-                                xtol=1e-6, ftol=1e-8, max_nfev=30)
-            self.fits[tau] = (float(sol.x[0]), float(sol.fun @ sol.fun), sol)
-        return self.fits[tau][1]
-
-    def best(self) -> tuple[float, float, float, Any]:
-        tau = min(self.fits, key=lambda t: self.fits[t][1])
-        sev, rss, sol = self.fits[tau]
-        return tau, sev, rss, sol
-
-
-def _fit_onset(problem: _Problem, candidates: list[Candidate], n: int, n_eff: float
-               ) -> dict[str, Any] | None:
-    """A change point: each single-fault hypothesis starting at an instant tau of the window
-    instead of from the start, its severity refitted at each tau of a coarse grid; the best
-    fault whose severity is of a size worth reporting (:func:`_sized`) has its tau refined by
-    golden section. Reported when it beats the best candidate from the
-    start by PAIR_EVIDENCE in BIC (tau, and the severity too against healthy, are parameters
-    more); the taus whose RSS stays within the 95 % likelihood-ratio limit are its interval.
-    The onset candidate is then moved to the front as the verdict, with its severity and
-    Jacobian interval at tau. About 100 model runs per hypothesis."""
-    singles = [c for c in candidates if len(c.faults) == 1]
-    if not singles:
-        return None
-    t0, t1 = problem.window
-    grid = np.linspace(max(t0, problem.t_start) + 0.005, t1 - 0.05, ONSET_GRID)
-    profiles = [_OnsetProfile(problem, c) for c in singles]
-    for prof in profiles:
-        for t in grid:
-            prof.cost(t)
-    # a change point of a fault too small to report is the mismatch's, as from the start (a
-    # static friction below its limit read as a 1.2-1.5 x dynamic friction from a wrong
-    # instant: measured)
-    sized = [pr for pr in profiles if _sized(pr.fault, pr.best()[1])]
-    if not sized:
-        return None
-    prof = min(sized, key=lambda pr: pr.best()[2])
-    k = int(np.argmin([prof.cost(t) for t in grid]))
-    a, b = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, len(grid) - 1)])
-    g = (math.sqrt(5) - 1) / 2
-    for _ in range(8):
-        c, d = b - g * (b - a), a + g * (b - a)
-        if prof.cost(c) <= prof.cost(d):
-            b = d
-        else:
-            a = c
-    tau, sev, rss, sol = prof.best()
-    ref = candidates[0]
-    extra = 1 + (1 if ref.fault == HEALTHY else 0)
-    gain = n_eff * math.log(max(ref.rss, 1e-300) / max(rss, 1e-300)) - extra * math.log(n_eff)
-    if gain < PAIR_EVIDENCE:
-        return None
-    limit = rss * (1.0 + CHI2_95 * (n / n_eff) / max(n - 2, 1))
-    # the interval: the tried instants that bracket those within the limit (the limit is
-    # crossed somewhere between an instant inside and its neighbour outside)
-    tried = sorted(prof.fits)
-    inside = [t for t in tried if prof.fits[t][1] <= limit]
-    below = [t for t in tried if t < min(inside) and prof.fits[t][1] > limit]
-    above = [t for t in tried if t > max(inside) and prof.fits[t][1] > limit]
-    lo = max(below) if below else t0
-    hi = min(above) if above else t1
-    spec = FAULTS[prof.fault]
-    n_own = _effective_n(sol.fun, len(SIGNALS))
-    iv = _jacobian_interval(prof.fault, 0, sol.x, sol.fun, sol.jac, n, n_own) or (spec.lo,
-                                                                                  spec.hi)
-    cand = prof.cand
-    cand.severity, cand.interval, cand.rss = sev, iv, rss
-    cand.fitted = problem.run(prof.nominal, ((tau, prof.fault, sev),)) or {}
-    candidates.remove(cand)
-    candidates.insert(0, cand)
-    return dict(t=float(tau), interval=[float(lo), float(hi)], fault=prof.fault)
-
-
 def _one_sided(fault: str, interval: tuple[float, float]) -> str:
     """'' where the likelihood-ratio interval ends inside the catalog's range on the side away
     from healthy; else the one-sided bound it supports (the near end)."""
@@ -733,7 +378,7 @@ def _one_sided(fault: str, interval: tuple[float, float]) -> str:
     return f'{fault} {">=" if up else "<="} {near:.4g}'
 
 
-def _sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:
+def sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:
     """``severity`` at least ``fraction`` (DETECTABLE) of the way from healthy to the fault's
     alarm value, in its calibration coordinate."""
     from .calibration import to_g
@@ -742,100 +387,7 @@ def _sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:
 
 def _detectable(c: Candidate, fraction: float = DETECTABLE) -> bool:
     """Every fault of ``c`` of a size worth reporting (:func:`_sized`)."""
-    return all(_sized(f, s, fraction) for f, s in zip(c.faults, c.severities))
-
-
-def _jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
-    """95 % interval of the severity x[i] of ``fault`` from the fit's Jacobian; None where the
-    residuals do not move with it at the fit (a flat stretch: static friction beyond the
-    break-away a run reaches), where the Jacobian says nothing."""
-    spec = FAULTS[fault]
-    if not np.any(jac[:, i]):
-        return None
-    k = len(x)
-    s2 = float(np.dot(res, res)) / max(n - k, 1)
-    jtj = jac.T @ jac
-    try:
-        cov = np.linalg.pinv(jtj) * s2 * (n / n_eff)
-        half = 1.96 * math.sqrt(max(float(cov[i, i]), 0.0))
-    except np.linalg.LinAlgError:
-        half = math.inf
-    if not math.isfinite(half):
-        return (spec.lo, spec.hi)
-    return (max(spec.lo, float(x[i]) - half), min(spec.hi, float(x[i]) + half))
-
-
-#: chi-square with one degree of freedom at 95 %
-CHI2_95 = 3.841
-
-
-def _ratio_interval(problem: _Problem, faults: Sequence[str], i: int, x: np.ndarray,
-                    free: Sequence[str], res: np.ndarray, n: int, n_eff: float,
-                    jac: np.ndarray) -> tuple[float, float]:
-    """The verdict's 95 % interval for severity ``i``: the severities whose RSS, the rest held
-    at the fit, stays within ``CHI2_95*s^2*n/n_eff`` of the fit's (a likelihood-ratio reading
-    with the residual variance and correlation of the fit), joined with the Jacobian's. Where
-    the cost is flat the ratio interval spans the flat stretch; where it is a parabola the two
-    agree. About 25 model runs."""
-    spec = FAULTS[faults[i]]
-    rss0 = float(np.dot(res, res))
-    limit = rss0 + CHI2_95 * rss0 / max(n - len(x), 1) * (n / n_eff)
-    nf = len(faults)
-    fr = {k: float(v) for k, v in zip(free, x[nf:])}
-
-    def inside(v: float) -> bool:
-        sev = [float(s) for s in x[:nf]]
-        sev[i] = v
-        r = problem.residuals(problem.run(problem.params(faults, sev, fr)))
-        return float(np.dot(r, r)) <= limit
-
-    x0 = float(x[i])
-    ends = []
-    for bound in (spec.lo, spec.hi):
-        # step out geometrically from the fit until outside (or at the bound), then bisect
-        step, last_in, out = (bound - x0) / 256.0, x0, None
-        while step and out is None:
-            v = x0 + step
-            if abs(v - x0) >= abs(bound - x0):
-                v = bound
-            if inside(v):
-                last_in = v
-                if v == bound:
-                    break
-                step *= 2.0
-            else:
-                out = v
-        for _ in range(6 if out is not None else 0):
-            mid = 0.5 * (last_in + out)
-            if inside(mid):
-                last_in = mid
-            else:
-                out = mid
-        ends.append(last_in)
-    lo, hi = ends
-    jac_iv = _jacobian_interval(faults[i], i, x, res, jac, n, n_eff)
-    if jac_iv is not None:
-        lo, hi = min(lo, jac_iv[0]), max(hi, jac_iv[1])
-    return (float(lo), float(hi))
-
-
-def _bootstrap_intervals(problem: _Problem, best: Candidate, free: list[str], n: int,
-                         seed: int) -> list[tuple[float, float]]:
-    """Percentile intervals (one per fault of ``best``) of ``n`` refits to the fitted signals
-    plus moving blocks of the residuals."""
-    rng = np.random.default_rng(seed)
-    m = len(problem.rows)
-    resid = {s: problem.recorded[s] - best.fitted[s] for s in SIGNALS}
-    sev = []
-    start = best.severities + [best.free[k] for k in free]
-    for _ in range(n):
-        starts = rng.integers(0, max(1, m - BLOCK_ROWS), size=-(-m // BLOCK_ROWS))
-        idx = np.concatenate([np.arange(a, a + BLOCK_ROWS) for a in starts])[:m] % m
-        synthetic = {s: best.fitted[s] + resid[s][idx] for s in SIGNALS}
-        x, _, _ = _fit(problem, best.faults, free, synthetic, [start])
-        sev.append(x[:len(best.faults)])
-    lo, hi = np.percentile(np.array(sev), [2.5, 97.5], axis=0)
-    return [(float(a), float(b)) for a, b in zip(lo, hi)]
+    return all(sized(f, s, fraction) for f, s in zip(c.faults, c.severities))
 
 
 __all__ = ['diagnose', 'Diagnosis', 'Candidate', 'DIAGNOSABLE', 'HEALTHY', 'UNEXPLAINED',

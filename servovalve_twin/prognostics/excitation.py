@@ -51,7 +51,8 @@ from ..physics.params import DEFAULTS, EhaParams
 from ..physics.scenario import Scenario, as_scenario
 from ..physics.simulate import simulate
 from .calibration import LEVELS, NOISE, VARY, Z90, from_g, severity_at, to_g
-from .diagnosis import DETECTABLE, DIAGNOSABLE, RESIDUAL_SCALE, SIGNALS, _effective_n
+from .diagnosis import DETECTABLE, DIAGNOSABLE
+from .fitting import RESIDUAL_SCALE, SIGNALS, effective_n
 
 #: evidence a fault must have over healthy to count as detected (BIC points; "very strong"
 #: on Kass and Raftery's scale, as a pair needs in diagnosis)
@@ -94,7 +95,7 @@ class Excitation:
         m = self.n // len(SIGNALS)
         noise = sum(m * (NOISE[s] / RESIDUAL_SCALE[s]) ** 2 for s in SIGNALS)
         self.rss0 = float(mismatch @ mismatch) + noise
-        self.n_eff = _effective_n(mismatch, len(SIGNALS))
+        self.n_eff = effective_n(mismatch, len(SIGNALS))
         self.kappa = kappa(self.n_eff)
         # the directions a free nuisance can take, orthonormal (the signatures are projected
         # off them: a fault that looks like a heavier jack is no fault to a fit that frees M)

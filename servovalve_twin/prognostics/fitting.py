@@ -1,0 +1,264 @@
+"""The least-squares machinery of the diagnosis (:mod:`.diagnosis`) on one recorded run: the
+run cut to its window and the model run per parameter set (:class:`Problem`), the bounded fit
+of a hypothesis' severities and nuisance factors (:func:`fit`), the effective sample size of
+correlated residuals, and the severity intervals -- from the Jacobian, the likelihood ratio, a
+block bootstrap."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..errors import ModelError, TwinError
+from ..physics.faults import FAULTS, combine
+from ..physics.params import PARAM_FIELDS, PARAM_NAMES, EhaParams
+from ..physics.scenario import Profile, Scenario
+from ..physics.signals import MEASURED
+from ..physics.simulate import simulate
+from ..physics.valves import get_monitor_model
+
+SIGNALS = MEASURED
+#: residual scales [SI]: about SQ's RMS error against HD on the paper scenario
+#: (doc/results/against-hd.md)
+RESIDUAL_SCALE = {'xj': 2.0e-4, 'dxj': 3.0e-3, 'p12': 2.0e5}
+#: nuisance factors on the design values
+FREE_BOUNDS = (0.5, 2.0)
+BLOCK_ROWS = 50
+#: chi-square with one degree of freedom at 95 %
+CHI2_95 = 3.841
+
+
+class Problem:
+    """The recorded run cut to the window, and the model run for one parameter set."""
+
+    def __init__(self, signals: Mapping[str, np.ndarray], design: EhaParams, model: str,
+                 control_period: float, window: tuple[float, float] | None,
+                 start: float | None = None):
+        missing = [s for s in ('t', 'com', 'fr', 'psr') + SIGNALS
+                   if s not in signals or not np.all(np.isfinite(signals[s]))]
+        if missing:
+            raise TwinError(f'the run lacks {", ".join(missing)} (a diagnosis needs the '
+                            'recorded /com, /fr, /psr, /xj, /dxj and /p12 at every 1 ms row)')
+        get_monitor_model(model)
+        self.model = model
+        # derived parameters (C4_alpha from CLk, ...) derive again under each hypothesis, as
+        # they do when the twin injects a fault; a bag's provenance lists them resolved
+        self.design = design.replace(**{n: None for n in PARAM_NAMES
+                                        if PARAM_FIELDS[n].default is None})
+        self.control_period = control_period
+        t = np.asarray(signals['t'], dtype=float)
+        ms = np.rint(t * 1000).astype(np.int64)
+        t_last = ms[-1] / 1000
+        t0, t1 = window if window is not None else (0.0, t_last)
+        if not (0.0 <= t0 < t1 <= t_last + 1e-9):
+            raise TwinError(f'window {t0:g}:{t1:g} s lies outside the run [0, {t_last:g}] s '
+                            '(T0 < T1 needed)')
+        self.window = (float(t0), float(t1))
+        start = 0.0 if start is None else float(start)
+        if not 0.0 <= start <= t0 + 1e-9:
+            raise TwinError(f'start {start:g} s must lie in [0, {t0:g}] (the window start)')
+        n_end = int(round(t1 * 1000))
+        n_start = int(round(start * 1000))
+        # the model runs from `start`, time shifted to 0, from the recorded jack state there
+        # (the spool and flapper from rest: they settle within milliseconds); a whole run
+        # starts at rest, where this is the rest state itself
+        self.initial = {s: float(signals[s][n_start]) for s in ('xj', 'dxj')}
+        # inputs in force from each 1 ms row on (piecewise constant, as the twin holds them)
+        profiles = {s: Profile('steps', tuple(zip(((ms[n_start:n_end + 1] - n_start) / 1000
+                                                   ).tolist(),
+                                                  np.asarray(signals[s][n_start:n_end + 1],
+                                                             dtype=float).tolist())))
+                    for s in ('com', 'fr', 'psr')}
+        self.scenario = Scenario(name='recorded', duration=(n_end - n_start) / 1000, **profiles)
+        keep = (ms >= int(round(t0 * 1000))) & (ms <= n_end)
+        self.rows = np.flatnonzero(keep)
+        self.model_rows = self.rows - n_start
+        self.recorded = {s: np.asarray(signals[s], dtype=float)[self.rows] for s in SIGNALS}
+        self.t = t[self.rows]
+        self.evaluations = 0
+        self._runs: dict[tuple, dict[str, np.ndarray] | None] = {}
+        self.t_start = n_start / 1000                  # run time of the model's t = 0
+
+    def params(self, faults: Sequence[str], severities: Sequence[float],
+               free: Mapping[str, float]) -> EhaParams:
+        nominal = self.design.replace(**{k: self.design.value(k) * v for k, v in free.items()})
+        return combine(nominal, dict(zip(faults, severities)))
+
+    def run(self, params: EhaParams, events: tuple = ()) -> dict[str, np.ndarray] | None:
+        """The model's window rows for ``params`` (None if the model failed); each parameter
+        set runs once -- the fitted signals of a hypothesis are those of its last solver
+        evaluations, not a run more. ``events``: faults scheduled during the run, ``(at [s,
+        run time], fault, severity)`` each (an onset)."""
+        key = (params, events)
+        if key not in self._runs:
+            self.evaluations += 1
+            scn = self.scenario if not events else dataclasses.replace(
+                self.scenario, faults=tuple(dict(at=at - self.t_start, fault=f, severity=sev)
+                                            for at, f, sev in events))
+            try:
+                r = simulate(self.model, scn, params=params, ecu_period=self.control_period,
+                             initial=self.initial)
+                self._runs[key] = {s: r[s][self.model_rows] for s in SIGNALS}
+            except ModelError:
+                self._runs[key] = None
+        return self._runs[key]
+
+    def residuals(self, fitted: dict[str, np.ndarray] | None,
+                  recorded: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+        recorded = self.recorded if recorded is None else recorded
+        if fitted is None:                      # the model failed here: far from any fit
+            return np.full(len(SIGNALS) * len(self.rows), 1e3)
+        return np.concatenate([(fitted[s] - recorded[s]) / RESIDUAL_SCALE[s] for s in SIGNALS])
+
+
+def start_grid(name: str, n: int = 7) -> list[float]:
+    """Severities to start from: geometric for multipliers, even for fractions and values."""
+    f = FAULTS[name]
+    if f.kind == 'scale':
+        grid = [f.lo * (f.hi / f.lo) ** q for q in np.linspace(0.0, 1.0, n)]
+    else:
+        grid = list(np.linspace(f.lo, f.hi, n))
+    return [float(g) for g in grid]
+
+
+def effective_n(res: np.ndarray, n_signals: int) -> float:
+    """n*(1 - rho)/(1 + rho) with rho the mean lag-1 autocorrelation of each signal's
+    residual (AR(1)); at least 10."""
+    rhos = []
+    for r in np.split(res, n_signals):
+        r = r - r.mean()
+        den = float(np.dot(r, r))
+        rhos.append(float(np.dot(r[1:], r[:-1])) / den if den > 0 else 0.0)
+    rho = min(max(float(np.mean(rhos)), 0.0), 0.999)
+    return max(10.0, len(res) * (1.0 - rho) / (1.0 + rho))
+
+
+def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
+         recorded: Mapping[str, np.ndarray] | None = None,
+         starts: Sequence[Sequence[float]] | None = None):
+    """Least squares over the faults' severities + nuisance factors; returns (x, residuals,
+    jacobian). ``starts``: candidate start points, the best of which is refined (default: a
+    coarse grid of a single fault's severity, nuisance at design values)."""
+    from scipy.optimize import least_squares
+    specs = [FAULTS[f] for f in faults]
+    nf = len(specs)
+    lo = [f.lo for f in specs] + [FREE_BOUNDS[0]] * len(free)
+    hi = [f.hi for f in specs] + [FREE_BOUNDS[1]] * len(free)
+
+    def fun(x):
+        fr = {k: float(v) for k, v in zip(free, x[nf:])}
+        return problem.residuals(problem.run(problem.params(faults, [float(v) for v in x[:nf]],
+                                                            fr)), recorded)
+
+    if not lo:                                   # healthy, nothing free: no fit to make
+        return np.zeros(0), fun(np.zeros(0)), np.zeros((len(problem.rows) * 3, 0))
+    if starts is None:
+        design = [1.0] * len(free)
+        starts = [[g] + design for g in start_grid(faults[0])] if nf == 1 else [
+            [FAULTS[f].healthy for f in faults] + design]
+    starts = [np.clip(np.asarray(x, dtype=float), lo, hi) for x in starts]
+    if len(starts) > 1:
+        costs = [float(np.sum(fun(x) ** 2)) for x in starts]
+        x0 = starts[int(np.argmin(costs))]
+    else:
+        x0 = starts[0]
+    scale = [(h - l) / 10.0 for l, h in zip(lo, hi)]
+    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-3,
+                        method='trf', xtol=1e-6, ftol=1e-8, max_nfev=60 * max(1, nf))
+    return sol.x, sol.fun, sol.jac
+
+
+def jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
+    """95 % interval of the severity x[i] of ``fault`` from the fit's Jacobian; None where the
+    residuals do not move with it at the fit (a flat stretch: static friction beyond the
+    break-away a run reaches), where the Jacobian says nothing."""
+    spec = FAULTS[fault]
+    if not np.any(jac[:, i]):
+        return None
+    k = len(x)
+    s2 = float(np.dot(res, res)) / max(n - k, 1)
+    jtj = jac.T @ jac
+    try:
+        cov = np.linalg.pinv(jtj) * s2 * (n / n_eff)
+        half = 1.96 * math.sqrt(max(float(cov[i, i]), 0.0))
+    except np.linalg.LinAlgError:
+        half = math.inf
+    if not math.isfinite(half):
+        return (spec.lo, spec.hi)
+    return (max(spec.lo, float(x[i]) - half), min(spec.hi, float(x[i]) + half))
+
+
+def ratio_interval(problem: Problem, faults: Sequence[str], i: int, x: np.ndarray,
+                    free: Sequence[str], res: np.ndarray, n: int, n_eff: float,
+                    jac: np.ndarray) -> tuple[float, float]:
+    """The verdict's 95 % interval for severity ``i``: the severities whose RSS, the rest held
+    at the fit, stays within ``CHI2_95*s^2*n/n_eff`` of the fit's (a likelihood-ratio reading
+    with the residual variance and correlation of the fit), joined with the Jacobian's. Where
+    the cost is flat the ratio interval spans the flat stretch; where it is a parabola the two
+    agree. About 25 model runs."""
+    spec = FAULTS[faults[i]]
+    rss0 = float(np.dot(res, res))
+    limit = rss0 + CHI2_95 * rss0 / max(n - len(x), 1) * (n / n_eff)
+    nf = len(faults)
+    fr = {k: float(v) for k, v in zip(free, x[nf:])}
+
+    def inside(v: float) -> bool:
+        sev = [float(s) for s in x[:nf]]
+        sev[i] = v
+        r = problem.residuals(problem.run(problem.params(faults, sev, fr)))
+        return float(np.dot(r, r)) <= limit
+
+    x0 = float(x[i])
+    ends = []
+    for bound in (spec.lo, spec.hi):
+        # step out geometrically from the fit until outside (or at the bound), then bisect
+        step, last_in, out = (bound - x0) / 256.0, x0, None
+        while step and out is None:
+            v = x0 + step
+            if abs(v - x0) >= abs(bound - x0):
+                v = bound
+            if inside(v):
+                last_in = v
+                if v == bound:
+                    break
+                step *= 2.0
+            else:
+                out = v
+        for _ in range(6 if out is not None else 0):
+            mid = 0.5 * (last_in + out)
+            if inside(mid):
+                last_in = mid
+            else:
+                out = mid
+        ends.append(last_in)
+    lo, hi = ends
+    jac_iv = jacobian_interval(faults[i], i, x, res, jac, n, n_eff)
+    if jac_iv is not None:
+        lo, hi = min(lo, jac_iv[0]), max(hi, jac_iv[1])
+    return (float(lo), float(hi))
+
+
+def bootstrap_intervals(problem: Problem, best, free: list[str], n: int,
+                         seed: int) -> list[tuple[float, float]]:
+    """Percentile intervals (one per fault of ``best``, a diagnosis Candidate) of ``n`` refits to the fitted signals
+    plus moving blocks of the residuals."""
+    rng = np.random.default_rng(seed)
+    m = len(problem.rows)
+    resid = {s: problem.recorded[s] - best.fitted[s] for s in SIGNALS}
+    sev = []
+    start = best.severities + [best.free[k] for k in free]
+    for _ in range(n):
+        starts = rng.integers(0, max(1, m - BLOCK_ROWS), size=-(-m // BLOCK_ROWS))
+        idx = np.concatenate([np.arange(a, a + BLOCK_ROWS) for a in starts])[:m] % m
+        synthetic = {s: best.fitted[s] + resid[s][idx] for s in SIGNALS}
+        x, _, _ = fit(problem, best.faults, free, synthetic, [start])
+        sev.append(x[:len(best.faults)])
+    lo, hi = np.percentile(np.array(sev), [2.5, 97.5], axis=0)
+    return [(float(a), float(b)) for a, b in zip(lo, hi)]
+
+
+__all__ = ['Problem', 'fit', 'effective_n', 'start_grid', 'jacobian_interval', 'ratio_interval',
+           'bootstrap_intervals', 'RESIDUAL_SCALE', 'FREE_BOUNDS', 'CHI2_95', 'SIGNALS']
