@@ -94,3 +94,24 @@ def test_console_script_exit_code():
                        text=True)
     assert r.returncode == 2 and r.stderr.startswith('servovalve-twin simulate: error:')
     assert 'Traceback' not in r.stderr
+
+
+@pytest.mark.slow
+def test_report_writes_a_new_directory_and_edits_nothing(tmp_path, monkeypatch, capsys):
+    """``report`` writes report.md (the tables, the machine and its load) and the figures into
+    a new directory -- by default out/report under the working directory -- and refuses one
+    that holds anything: it never overwrites, and never edits a page of the repository."""
+    monkeypatch.chdir(tmp_path)
+    assert main(['report']) == 0
+    out = tmp_path / 'out' / 'report'
+    page = (out / 'report.md').read_text()
+    assert 'load average' in page and 'CPUs' in page
+    assert '| SQ |' in page and '| C2 |' in page and 'step cost' in page
+    assert (out / 'characteristic.png').stat().st_size > 1000
+    assert len(list(out.glob('*.png'))) >= 12
+    before = page
+    capsys.readouterr()
+    assert main(['report', '--out-dir', str(out)]) == 2
+    err = capsys.readouterr().err
+    assert 'not an empty directory' in err and err.count('\n') == 1
+    assert (out / 'report.md').read_text() == before

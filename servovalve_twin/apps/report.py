@@ -1,12 +1,15 @@
-"""The results report: every registered model against HD on the paper scenario.
+"""The results report: every registered model against HD on the paper scenario, and SQ against
+C1-C3 beyond it.
 
-``servovalve-twin report --readme doc/results/against-hd.md`` regenerates the table between the
-page's ``<!-- results:begin -->`` / ``<!-- results:end -->`` markers and the figures in ``docs/figures``.
+``servovalve-twin report [--out-dir out/report]`` writes ``report.md`` (the tables, with the
+machine and its load while it measured: the step costs depend on them) and the figures into a
+new (or empty) directory. It never edits a file of the repository: the results pages
+(doc/results/against-hd.md, beyond-the-paper.md) and docs/figures are updated by copying from
+there, after a quiet-machine run.
 """
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -21,9 +24,7 @@ from ..runs import simulate
 from .compare import error_metrics
 from .plots import plot_characteristic, plot_overlay
 
-BEGIN, END = '<!-- results:begin -->', '<!-- results:end -->'
-BEYOND_BEGIN, BEYOND_END = '<!-- beyond:begin -->', '<!-- beyond:end -->'
-#: issue 6: the scenarios of the comparison, with the windows reported beside the whole run
+#: the scenarios of the comparison beyond the paper, with the windows reported beside the run
 BEYOND_SCENARIOS = (('paper', None, ('overstall', 'braking')),
                     ('paper', {'CLk': 2e-12}, ('overstall', 'braking')),
                     ('sine_opposing', None, ('late',)))
@@ -42,8 +43,32 @@ def paper_runs(overrides: Mapping[str, Any] | None = None) -> dict[str, RunResul
             for m in progress(VALVE_MODEL_NAMES, desc='report: paper runs', unit='model')}
 
 
-def make_report(*, out_dir: Path, readme: Path | None = None,
-                overrides: Mapping[str, Any] | None = None) -> str:
+def make_report(*, out_dir: Path, overrides: Mapping[str, Any] | None = None) -> str:
+    """Write ``out_dir/report.md`` and the figures; ``out_dir`` must be new or empty (nothing
+    is overwritten). Returns the page's text."""
+    import os
+    import platform
+    import time
+    from .. import __version__
+    from ..errors import TwinError
+    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+        raise TwinError(f'--out-dir {out_dir}: exists and is not an empty directory; report '
+                        'writes into a new one (nothing is overwritten)')
+    load0 = os.getloadavg()[0]
+    tables = _tables(out_dir, overrides)
+    import numba
+    page = (f'# servovalve_twin report\n\n'
+            f'servovalve_twin {__version__}, {time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}'
+            f'; {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python '
+            f'{platform.python_version()}, numba {numba.__version__}; load average '
+            f'{load0:.2f} before, {os.getloadavg()[0]:.2f} after (the step costs move with '
+            f'it).\n\n{tables}\n')
+    with open(out_dir / 'report.md', 'x', encoding='utf-8') as fh:
+        fh.write(page)
+    return page
+
+
+def _tables(out_dir: Path, overrides: Mapping[str, Any] | None) -> str:
     runs = paper_runs(overrides)
     ref = runs['HD']
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -75,23 +100,11 @@ def make_report(*, out_dir: Path, readme: Path | None = None,
               for n in ('HD', 'C1', 'C2', 'C3', 'SQ')}
     plot_characteristic(curves, out_dir / 'characteristic.png', params.PSRN)
     table = '\n'.join(lines)
-    text = (f'{table}\n\nErrors are run - HD over the 1 ms rows of the paper scenario (whole run, '
-            f'and the over-stall window 0.35-0.50 s). Back movement = XJ(0.35 s) - min XJ over '
-            f'0.35-0.60 s. Regenerate with '
-            f'`servovalve-twin report --readme doc/results/against-hd.md`; '
-            f'figures in `{out_dir.as_posix()}/`.')
-    beyond = beyond_report(out_dir)
-    if readme is not None:
-        body = readme.read_text(encoding='utf-8')
-        for begin, end, section in ((BEGIN, END, text), (BEYOND_BEGIN, BEYOND_END, beyond)):
-            if begin not in body or end not in body:
-                from ..errors import TwinError
-                raise TwinError(f'{readme} has no {begin} ... {end} section to replace')
-            body = re.sub(re.escape(begin) + '.*?' + re.escape(end),
-                          lambda _m, b=begin, e=end, t=section: f'{b}\n{t}\n{e}', body,
-                          flags=re.S)
-        readme.write_text(body, encoding='utf-8')
-    return text + '\n\n' + beyond
+    text = (f'## Every model against HD, paper scenario\n\n{table}\n\nErrors are run - HD over '
+            f'the 1 ms rows of the paper scenario (whole run, and the over-stall window '
+            f'0.35-0.50 s). Back movement = XJ(0.35 s) - min XJ over 0.35-0.60 s. '
+            f'`servovalve-twin report`; figures beside this page.')
+    return text + '\n\n## SQ against C1, C2, C3 beyond the paper\n\n' + beyond_report(out_dir)
 
 
 _COST_CHILD = """
@@ -120,7 +133,7 @@ def step_costs_us(models, processes: int = 3) -> dict[str, float]:
 
 
 def beyond_report(out_dir: Path) -> str:
-    """Issue 6: SQ against C1, C2, C3 on three scenarios, errors against HD and step cost."""
+    """SQ against C1, C2, C3 on three scenarios, errors against HD and step cost."""
     from ..config import load_scenario
     out_dir.mkdir(parents=True, exist_ok=True)
     cost = step_costs_us(BEYOND_MODELS)

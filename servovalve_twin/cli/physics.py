@@ -121,23 +121,20 @@ class Faults(Command):
 
 class Report(Command):
     name = 'report'
-    help = 'every model against HD on the paper scenario: table and figures (optionally into ' \
-           'a results page)'
+    help = 'every model against HD on the paper scenario and SQ beyond it: tables and figures ' \
+           'into a new directory'
 
     def add_arguments(self, p):
-        p.add_argument('--out-dir', default='docs/figures', metavar='DIR',
-                       help='where the figures go (default docs/figures)')
-        p.add_argument('--readme', metavar='PAGE.md',
-                       help='replace the results section (between <!-- results:begin --> and '
-                            '<!-- results:end -->) of this page, e.g. '
-                            'doc/results/against-hd.md')
+        p.add_argument('--out-dir', default='out/report', metavar='DIR',
+                       help='a new or empty directory for report.md (the tables, the machine '
+                            'and its load) and the figures (default out/report); no file of '
+                            'the repository is edited')
         add_param_options(p)
 
     def main(self, args):
         from pathlib import Path
         from ..apps.report import make_report
-        print(make_report(out_dir=Path(args.out_dir), readme=Path(args.readme) if args.readme
-                          else None, overrides=overrides(args)))
+        print(make_report(out_dir=Path(args.out_dir), overrides=overrides(args)))
         return 0
 
 
