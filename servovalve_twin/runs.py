@@ -14,6 +14,7 @@ import numpy as np
 
 from .config import load_scenario
 from .errors import TwinError
+from .outputs import output_file, output_path
 from .physics import simulate as _physics
 from .physics.params import EhaParams
 from .physics.scenario import Scenario
@@ -50,7 +51,7 @@ def write_csv(path: str | Path, signals: Mapping[str, np.ndarray]) -> None:
         write(sys.stdout)
         sys.stdout.flush()
         return
-    with open(path, 'w', newline='', encoding='utf-8') as fh:
+    with output_file(path, newline='') as fh:     # whole or absent
         write(fh)
 
 
@@ -83,8 +84,9 @@ def write_table(path: str | Path, signals: Mapping[str, np.ndarray]) -> None:
     if str(path).endswith('.parquet'):
         import pyarrow as pa
         import pyarrow.parquet as pq
-        pq.write_table(pa.table({k: np.asarray(v, dtype=float) for k, v in signals.items()}),
-                       str(path))
+        with output_path(path) as tmp:
+            pq.write_table(pa.table({k: np.asarray(v, dtype=float)
+                                     for k, v in signals.items()}), str(tmp))
     else:
         write_csv(path, signals)
 

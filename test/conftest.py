@@ -58,3 +58,22 @@ def console_script(name: str) -> str:
         pytest.fail(f'executable {name!r} of servovalve_twin is not installed: run scripts/setup '
                     '(pip) or colcon build and source install/setup.bash')
     return found
+
+
+def pytest_collection_modifyitems(config, items):
+    """The tiers: a test that may start rclpy nodes -- it takes ``ros_context``, ``replay`` or
+    ``twin_bag``, lives in test/ros/, or its module uses rclpy, the twin, the ``run``/``play``
+    commands or an executable -- is marked ``ros`` (``pytest -m "not ros"`` needs no ROS
+    graph); ``slow`` is marked by hand on tests of more than about 2 s here, so that
+    ``pytest -m "not slow"`` is the fast tier."""
+    ros_fixtures = {'ros_context', 'replay', 'twin_bag'}
+    ros_modules: dict[str, bool] = {}
+    for item in items:
+        path = str(item.fspath)
+        if path not in ros_modules:
+            text = Path(path).read_text(encoding='utf-8')
+            ros_modules[path] = '/ros/' in path or any(
+                w in text for w in ('rclpy', 'servovalve_twin.twin', "'run'", "'play'",
+                                    'console_script('))
+        if ros_modules[path] or ros_fixtures & set(getattr(item, 'fixturenames', ())):
+            item.add_marker(pytest.mark.ros)

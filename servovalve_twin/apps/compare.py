@@ -16,6 +16,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import TwinError
+from ..outputs import output_file
 
 #: signals compared, with their display unit and scale
 COMPARED = {'xj': ('XJ', 'mm', 1e3), 'dxj': ('DXJ', 'mm/s', 1e3), 'p12': ('P12', 'MPa', 1e-6),
@@ -100,7 +101,8 @@ def write_json(path: str | Path, payload: Any) -> None:
         if isinstance(o, (list, tuple)):
             return [clean(v) for v in o]
         return o
-    Path(path).write_text(json.dumps(clean(payload), indent=2) + '\n', encoding='utf-8')
+    with output_file(path) as fh:                 # whole or absent
+        fh.write(json.dumps(clean(payload), indent=2) + '\n')
 
 
 def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..bag.reader import read_bag
 from ..errors import TwinError
+from ..outputs import output_path
 from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
                                      diagnose, model_form_estimate)
 from ..prognostics.prognosis import Prognosis, prognose
@@ -160,7 +161,8 @@ def plot_prognosis(p: Prognosis, path: str | Path) -> None:
     ax2.legend(fontsize=8)
     ax2.grid(True, lw=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with output_path(path) as tmp:              # whole or absent
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 

@@ -8,6 +8,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..outputs import output_path
 from .compare import COMPARED
 
 
@@ -63,7 +64,8 @@ def plot_overlay(runs: Mapping[str, Mapping[str, np.ndarray]], path: str | Path,
     if title:
         axes[0].set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with output_path(path) as tmp:              # whole or absent
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 
@@ -102,5 +104,6 @@ def plot_characteristic(curves: dict[str, dict[str, np.ndarray]], path, psr: flo
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with output_path(path) as tmp:              # whole or absent
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)

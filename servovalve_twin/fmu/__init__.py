@@ -13,6 +13,7 @@ import tempfile
 from pathlib import Path
 
 from ..errors import TwinError
+from ..outputs import place_new
 from ..physics.params import DEFAULTS
 from ..physics.simulate import steps_per
 from ..physics.valves import get_valve_model
@@ -77,7 +78,7 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
         # built beside the target, then moved into place: a failed build leaves no file
         built = FmuBuilder.build_FMU(script, dest=tmp / out.name,
                                      project_files=[cfg, req, carried])
-        shutil.move(str(built), str(out))
+        place_new(built, out)
     return out
 
 

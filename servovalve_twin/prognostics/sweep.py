@@ -214,7 +214,7 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
         try:
             futures = client.map(run_case, cases, [traces] * len(cases), pure=False)
             for f in progress(futures, total=len(futures), desc='sweep', unit='run'):
-                yield f.result()
+                yield _dask_result(client, f, scheduler)
         finally:
             client.close()
         return
@@ -233,6 +233,30 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
         yield from progress(pool.map(run_case, rest, [traces] * len(rest),
                                      chunksize=max(1, len(rest) // (8 * workers))),
                             total=len(cases), initial=1, desc='sweep', unit='run')
+
+
+#: how long a Dask cluster may have no worker at all before a sweep gives up on it [s]
+NO_WORKER_S = 60.0
+
+
+def _dask_result(client, future, scheduler: str) -> dict[str, Any]:
+    """A run's result from the cluster; a cluster left without any worker (they died and
+    nothing restarts them) is an error after :data:`NO_WORKER_S`, not a wait forever."""
+    import time
+    from distributed import TimeoutError as DaskTimeout
+    since = None
+    while True:
+        try:
+            return future.result(timeout=5)
+        except (DaskTimeout, TimeoutError):
+            if client.scheduler_info().get('workers'):
+                since = None
+            elif since is None:
+                since = time.monotonic()
+            elif time.monotonic() - since > NO_WORKER_S:
+                raise TwinError(f'the Dask cluster at {scheduler} has had no worker for '
+                                f'{NO_WORKER_S:g} s: start workers, or sweep locally '
+                                '(without --scheduler)') from None
 
 
 def write_dataset(out: Path, results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:

@@ -88,6 +88,7 @@ def test_a_fit_from_a_recorded_instant_is_free_of_the_fault_s_history():
         diagnose(run.signals, DEFAULTS, start=0.6, **kw)
 
 
+@pytest.mark.slow
 def test_the_estimator_keeps_its_cost_bounded_on_a_long_run():
     """A 3 s flight (the paper's inputs three times over), HD with a gain loss of 0.7: every
     estimate from 0.5 s on reads it within 5 %, and the estimator keeps only the rows of the
@@ -110,6 +111,7 @@ def test_the_estimator_keeps_its_cost_bounded_on_a_long_run():
     assert len(alg.rows['t']) <= 951
 
 
+@pytest.mark.slow
 def test_the_bootstrap_interval_is_the_spread_of_repeated_flights():
     """--bootstrap against its independent reference, repeated experiments: an SQ unit with
     leakage 10 x measured with white noise (0.2 mm, 3 mm/s, 0.2 MPa) twenty times over, each
@@ -174,6 +176,7 @@ def test_two_faults_at_once_are_recovered_as_a_pair():
     assert all(len(i) == 2 for i in j['interval'])
 
 
+@pytest.mark.slow
 def test_a_single_hd_fault_is_not_called_a_pair():
     """An HD unit with only a torque-motor gain loss: with --pairs the verdict stays the
     single fault. Here the pair with a null bias scores best (the bias takes up some of SQ's
@@ -186,6 +189,7 @@ def test_a_single_hd_fault_is_not_called_a_pair():
     assert len(d.candidates) == 1 + 7 + 21
 
 
+@pytest.mark.slow
 def test_hd_unit_with_two_faults_is_diagnosed_as_the_pair():
     """HD with a torque-motor gain loss of 0.5 and a supply loss of 0.3 (SQ model): the pair
     is named, each severity within 10 % (measured 2-3 %)."""
@@ -395,6 +399,7 @@ def test_the_estimator_node_diagnoses_live_in_the_lockstep(ros_context, tmp_path
 @pytest.mark.slow
 @pytest.mark.parametrize('fault, q, at', [('supply_loss', 1.0, 0.3),
                                           ('leakage_growth', 1.0, 0.5)])
+@pytest.mark.slow
 def test_a_fault_that_starts_mid_flight_is_located(fault, q, at):
     """An HD unit whose fault begins mid-flight: fitted as present from the start it fits
     like no right hypothesis (unexplained); with the change point the onset comes back within
@@ -423,6 +428,7 @@ def test_an_onset_of_a_fault_too_small_to_report_is_no_verdict():
     assert d.onset is None and (d.verdict or d.best.fault) in ('healthy', UNEXPLAINED)
 
 
+@pytest.mark.slow
 def test_no_onset_is_reported_for_a_fault_present_from_the_start():
     sig, truth, _ = calibration.unit_signals('leakage_growth', 1.0, 'paper', 32, noise_gain=1.0)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('M', 'CJ'),

@@ -143,6 +143,7 @@ def test_replay_executable(tmp_path):
     assert read_bag(tmp_path / 'r').valve_model == 'C3'
 
 
+@pytest.mark.slow
 def test_twin_executable(tmp_path):
     r = subprocess.run([console_script('twin'), '--ros-args', '-p', 'valve_model:=C3',
                         '-p', f'bag:={tmp_path / "t"}', '-p', 'scenario:=defaults',
@@ -199,6 +200,7 @@ def test_twin_executable_and_run_take_the_same_options(tmp_path):
     assert r.stderr.count('\n') == 1 and not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_twin_executable_stops_cleanly_on_sigint(tmp_path):
     """Ctrl-C (or launch's SIGINT) ends ``twin`` at a tick with exit code 0 -- launch logs no
     'process has died' -- and a finished bag; a second SIGINT during the stop changes

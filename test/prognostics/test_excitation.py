@@ -145,6 +145,7 @@ def test_designed_bit_reveals_mild_static_friction_where_the_paper_flight_does_n
     assert p.best.fault != 'static_friction' or not p.identifiable
 
 
+@pytest.mark.slow
 def test_bit_command_writes_a_scenario_and_the_limits(tmp_path, capsys):
     out = tmp_path / 'bit.yaml'
     assert main(['bit', '--out', str(out), '--duration', '1.5', '--seed', '1',

@@ -244,6 +244,7 @@ def test_replay_into_is_deterministic_under_load(ros_context, twin_bag):
         assert quiet[topic] == busy[topic], topic
 
 
+@pytest.mark.slow
 def test_the_worked_example_passes_as_a_users_test_suite():
     """docs/examples/my_detector's tests, run as a user runs them: the fixtures come from the
     installed package's pytest plugin, nothing from this repository's conftest."""

@@ -93,6 +93,7 @@ def test_a_right_hypothesis_is_not_unexplained():
     assert d.confidence == 0.9
 
 
+@pytest.mark.slow
 def test_the_model_form_term_makes_the_interval_hold_the_truth():
     """SQ reads HD's leakage low (the model's bias): the noise-only interval misses the truth
     on these units, the calibrated one holds it, and is wider."""

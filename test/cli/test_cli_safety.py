@@ -95,6 +95,7 @@ def test_a_refused_start_leaves_nothing_behind(ros_context, tmp_path, monkeypatc
     assert not (tmp_path / 'bags').exists()
 
 
+@pytest.mark.slow
 def test_byte_flips_are_detected_never_read_silently(ros_context, tmp_path):
     """Every chunk, the data section and the summary carry a CRC: a flipped byte anywhere
     either fails with one line or changes nothing that is read."""

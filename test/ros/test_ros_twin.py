@@ -234,6 +234,7 @@ def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_p
     assert read_bag(tmp_path / 'm').topics['/monitor/residual_dxj'] == 1001
 
 
+@pytest.mark.slow
 def test_the_graph_still_sees_the_topics_the_nodes_hand_over_in_process(ros_context, tmp_path):
     """In the twin the nodes pass their values to each other in process and publish a topic
     on DDS only while something subscribes: a listener in another context (its own thread,

@@ -17,6 +17,7 @@ def _hist(cycles, severities, half_widths, model_sigma=0.0):
                  model_sigma=model_sigma) for n, s, h in zip(cycles, severities, half_widths)]
 
 
+@pytest.mark.slow
 def test_trend_free_histories_give_no_finite_rul():
     """200 histories of 15 flights of a healthy leakage multiplier read with noise: a trend
     fitted to noise extrapolates to any life, so the answer must be that there is none."""
@@ -82,6 +83,7 @@ def test_a_first_flight_misread_near_zero_does_not_drag_the_trend():
 
 @pytest.mark.parametrize('kind,noise', [('linear', 0.08), ('exponential', 0.08),
                                         ('linear', 0.15)])
+@pytest.mark.slow
 def test_the_90_percent_rul_interval_holds_the_truth(kind, noise):
     """Histories whose severities carry 8 or 15 % noise that the intervals understate (2 %:
     the trend's own scatter must widen them) and a

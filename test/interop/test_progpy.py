@@ -46,6 +46,7 @@ def test_next_state_is_simulate_bit_for_bit(valve_model):
                           X[-1, [m.states.index(k) for k in ('xj', 'dxj', 'p12')]])
 
 
+@pytest.mark.slow
 def test_a_particle_filter_tracks_a_leak_growing_in_an_hd_twin(ros_context, tmp_path):
     """The ROS twin's HD plant with its leakage growing from 2 to 18 x CLk between 0.2 and
     0.9 s (a fault event every 10 ms), its bag read back and measured with noise (XJ 10 um,
@@ -176,6 +177,7 @@ def test_monte_carlo_from_any_t0_with_growth_states_and_a_set_threshold(t0):
         m.simulate_to_threshold(load, dt=('auto', 1.0))
 
 
+@pytest.mark.slow
 def test_a_particle_filter_estimates_the_growth_rate_and_predicts_the_event():
     """progpy's tutorial loop -- ParticleFilter.estimate on noisy outputs, then
     MonteCarlo.predict from the filter's state -- on an SQ unit whose leak grows at 30 x/s

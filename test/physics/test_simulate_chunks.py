@@ -61,6 +61,7 @@ print(json.dumps(dict(hits=sum(loop.stats.cache_hits.values()),
 '''
 
 
+@pytest.mark.slow
 def test_a_second_process_loads_each_models_step_loop_from_the_disk_cache(tmp_path):
     """Each model has its own loop (the id a closure constant, :func:`run_steps_for`): it is
     compiled once and the next process loads it, no cache miss. Run in the order C2, HD, C2,

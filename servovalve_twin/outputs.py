@@ -1,0 +1,81 @@
+"""A command's output file is whole or absent: it is written beside the target under a
+temporary name and renamed onto it once complete (a rename within one directory is atomic).
+A full disk, an error or a kill midway leaves the target as it was and no temporary file;
+a target that is a symbolic link is replaced as a link, never written through.
+
+``output_file(path)`` for text written here, ``output_path(path)`` for a library that writes
+a file itself (pyarrow, matplotlib), ``place_new(built, path)`` for a file built elsewhere that
+must not replace an existing one (the FMU).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import IO, Iterator
+
+from .errors import TwinError
+
+
+def _temporary(path: Path) -> Path:
+    if path.is_dir():
+        raise TwinError(f'{path} is a directory; give a file name')
+    try:
+        # the target's suffix kept last: a writer that infers the format from it (matplotlib)
+        fd, tmp = tempfile.mkstemp(prefix=f'.{path.stem}.', suffix=f'.part{path.suffix}',
+                                   dir=path.parent)
+    except OSError as exc:                  # the error names the target, not our temporary
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
+    os.close(fd)
+    return Path(tmp)
+
+
+@contextlib.contextmanager
+def output_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write to; renamed onto ``path`` when the block
+    ends without an error, removed otherwise."""
+    path = Path(path)
+    tmp = _temporary(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def output_file(path: str | Path, mode: str = 'w', *, newline: str | None = None,
+                encoding: str | None = 'utf-8') -> Iterator[IO]:
+    """An open file whose content replaces ``path`` only once the block has ended without an
+    error."""
+    with output_path(path) as tmp:
+        with open(tmp, mode, newline=newline,
+                  encoding=None if 'b' in mode else encoding) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+def place_new(built: str | Path, path: str | Path) -> Path:
+    """Move the finished file ``built`` to ``path``, which must not exist: copied beside it
+    under a temporary name (``built`` may be on another filesystem), then linked into place --
+    a link fails rather than replace a file that appeared meanwhile."""
+    path = Path(path)
+    tmp = _temporary(path)
+    try:
+        shutil.copyfile(built, tmp)
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            raise TwinError(f'{path} exists; give a new file name (nothing is overwritten)'
+                            ) from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+__all__ = ['output_file', 'output_path', 'place_new']

@@ -1,0 +1,65 @@
+"""servovalve_twin.outputs: a command's output file is whole or absent -- written beside the
+target and renamed -- whatever stops the writing; a symbolic link is never written through."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from servovalve_twin.cli import main
+from servovalve_twin.errors import TwinError
+from servovalve_twin.outputs import output_file, place_new
+from conftest import ROOT
+
+
+def test_an_error_midway_leaves_the_old_file_and_no_temporary(tmp_path):
+    target = tmp_path / 'run.csv'
+    target.write_text('the old content\n')
+    with pytest.raises(RuntimeError):
+        with output_file(target) as fh:
+            fh.write('half of a new')
+            raise RuntimeError('the disk is full')
+    assert target.read_text() == 'the old content\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['run.csv']
+    with output_file(target) as fh:
+        fh.write('new\n')
+    assert target.read_text() == 'new\n' and len(list(tmp_path.iterdir())) == 1
+
+
+def test_a_full_disk_leaves_no_partial_csv(tmp_path):
+    """simulate --out under a file-size limit of 20 kB (the CSV is ~200 kB): one line, exit 2,
+    neither the CSV nor a temporary file left."""
+    code = ('import resource, signal, sys\n'
+            'signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n'
+            'resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))\n'
+            'from servovalve_twin.cli import main\n'
+            'sys.exit(main(["simulate", "--valve-model", "C2", "--out", "run.csv"]))\n')
+    r = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    print(r.stderr)
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'Traceback' not in r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_symbolic_link_is_replaced_not_written_through(tmp_path, capsys):
+    elsewhere = tmp_path / 'elsewhere'
+    elsewhere.mkdir()
+    link = tmp_path / 'run.csv'
+    link.symlink_to(elsewhere / 'victim.csv')          # dangling: victim.csv does not exist
+    assert main(['simulate', '--valve-model', 'C2', '--out', str(link)]) == 0
+    assert not link.is_symlink() and link.read_text().startswith('t,com,fr,psr')
+    assert list(elsewhere.iterdir()) == []
+
+
+def test_a_built_file_never_replaces_an_existing_one(tmp_path):
+    built = tmp_path / 'built.fmu'
+    built.write_bytes(b'new')
+    out = tmp_path / 'EHA.fmu'
+    out.symlink_to(tmp_path / 'nowhere.fmu')
+    with pytest.raises(TwinError, match='exists'):
+        place_new(built, out)
+    assert not (tmp_path / 'nowhere.fmu').exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['EHA.fmu', 'built.fmu']
+    out.unlink()
+    assert place_new(built, out).read_bytes() == b'new'
