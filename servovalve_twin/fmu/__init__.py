@@ -24,6 +24,13 @@ SLAVE_MODULE = 'servovalve_twin_eha'
 REQUIRES = ('numpy', 'numba')
 #: the package files the slave's physics imports (physics/ whole; checked by a test)
 CARRIED = ('__init__.py', 'errors.py', 'jitcache.py', 'physics')
+#: the name the carried copy has inside the FMU: not ``servovalve_twin``, which it would shadow
+#: in the importing process (pythonfmu puts the FMU's resources first on ``sys.path``; a
+#: process that loaded the FMU then failed to import ``servovalve_twin.prognostics`` -- a Dask
+#: worker spawned from it did)
+CARRIED_AS = '_servovalve_twin_fmu'
+#: the FMU's resource naming the valve model and control period it was built for
+CONFIG = 'eha_fmu.json'
 
 
 def _requirements() -> str:
@@ -38,9 +45,9 @@ def _requirements() -> str:
 
 
 def _carry_package(dest: Path) -> Path:
-    """A copy of the package's physics (sources only) at ``dest/servovalve_twin``."""
+    """A copy of the package's physics (sources only) at ``dest/<CARRIED_AS>``."""
     src = Path(__file__).resolve().parents[1]
-    pkg = dest / 'servovalve_twin'
+    pkg = dest / CARRIED_AS
     pkg.mkdir()
     for name in CARRIED:
         if (src / name).is_dir():
@@ -55,7 +62,6 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
     """Write ``out`` (.fmu): the EHA with ``valve_model``, its ECU sampled every
     ``control_period``. Refuses an existing ``out`` (it overwrites nothing)."""
     from pythonfmu.builder import FmuBuilder
-    from .slave import CONFIG
     model = get_valve_model(valve_model)
     steps_per(control_period, DEFAULTS, '--control-period')
     out = Path(out)
@@ -82,4 +88,4 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
     return out
 
 
-__all__ = ['build_fmu', 'SLAVE_MODULE', 'REQUIRES']
+__all__ = ['build_fmu', 'SLAVE_MODULE', 'REQUIRES', 'CARRIED_AS', 'CONFIG']

@@ -2,7 +2,8 @@
 
 ``servovalve-twin fmu`` packs this file into the FMU with ``eha_fmu.json`` (the valve model and
 control period it was built for), ``requirements.txt`` and a copy of the package's physics as
-resources. It runs in the importing tool's Python (pythonfmu FMUs need a Python to execute: the
+resources (the package ``_servovalve_twin_fmu``: this file is the FMU's script, not a module
+of servovalve_twin to import). It runs in the importing tool's Python (pythonfmu FMUs need a Python to execute: the
 FMU says so, ``needsExecutionTool``), which must have numpy and numba (``requirements.txt``); a
 missing one is one message in the FMU's log naming what to install. The first instance in a
 process compiles the physics (numba; seconds), as the FMU is unpacked afresh by each run.
@@ -30,9 +31,11 @@ except ImportError as exc:   # the importer's Python lacks what the FMU declares
         f'({exc}); install them (pip install numpy numba), or run `pythonfmu deploy -f '
         f'<this>.fmu`, which installs resources/requirements.txt') from None
 
-from servovalve_twin.errors import TwinError
-from servovalve_twin.physics.params import DEFAULTS, PARAM_FIELDS
-from servovalve_twin.physics.simulate import EhaPlant, steps_per
+# the package's physics as the FMU carries it (servovalve_twin.fmu.CARRIED_AS): a copy under
+# its own name, so that it never shadows an installed servovalve_twin in the importing process
+from _servovalve_twin_fmu.errors import TwinError
+from _servovalve_twin_fmu.physics.params import DEFAULTS, PARAM_FIELDS
+from _servovalve_twin_fmu.physics.simulate import EhaPlant, steps_per
 
 CONFIG = 'eha_fmu.json'
 _TYPES = {'float': Real, 'int': Integer, 'bool': Boolean}

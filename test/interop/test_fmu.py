@@ -91,6 +91,15 @@ def test_the_fmu_refuses_steps_and_periods_it_cannot_take(fmus):
                      start_values={'control_period': 1.5e-5})
     with pytest.raises(FMICallException, match='DoStep'):
         simulate_fmu(fmu, stop_time=0.01, step_size=1.5e-3)
+    # a failed run leaves the FMU unpacked, its resources first on this process's path: its
+    # copy of the physics must not be a servovalve_twin there, or a process spawned from here
+    # (a Dask worker) imports the copy and fails on servovalve_twin.prognostics
+    import sys
+    import servovalve_twin
+    real = Path(servovalve_twin.__file__).resolve().parent
+    shadows = [p for p in sys.path if p and (Path(p) / 'servovalve_twin').is_dir()
+               and (Path(p) / 'servovalve_twin').resolve() != real]
+    assert shadows == []
 
 
 #: what the importer's Python runs: validate, then simulate on the inputs in inputs.npz
