@@ -137,7 +137,9 @@ class Play(Command):
         old = {sig: signal.signal(sig, lambda *_: stop.append(True))
                for sig in (signal.SIGINT, signal.SIGTERM)}
         context = Context()
-        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+        # no arguments for rcl: by default it reads sys.argv, and took this command's own
+        # values (--remap FROM:=TO, a --topics value) for remap rules of its own
+        rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
         try:
             result = play(args.bag, opts, context=context, stop=lambda: bool(stop),
                           foxglove=args.foxglove)

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -68,14 +69,21 @@ class PlayOptions:
     remap: tuple[str, ...] = ()         # FROM:=TO
 
     def check(self) -> None:
-        if not (self.rate > 0 and self.rate < float('inf')):
-            raise TwinError(f'rate must be a positive factor, got {self.rate!r}')
-        if not self.clock >= 0:
-            raise TwinError(f'clock must be >= 0 Hz (0 = no /clock), got {self.clock!r}')
+        lo, hi = RATE_RANGE
+        if not lo <= self.rate <= hi:
+            # a rate of 1e-300 was accepted and played 13 messages in 8 s, never ending
+            raise TwinError(f'rate must be a factor in [{lo:g}, {hi:g}], got {self.rate!r}')
+        if not 0 <= self.clock <= MAX_CLOCK_HZ:
+            raise TwinError(f'clock must be in [0, {MAX_CLOCK_HZ:g}] Hz (0 = no /clock), got '
+                            f'{self.clock!r}')
         for name in ('delay', 'start_offset', 'playback_duration'):
-            if not getattr(self, name) >= 0:
-                raise TwinError(f'{name} must be >= 0 s, got {getattr(self, name)!r}')
-        self.remaps()
+            v = getattr(self, name)
+            if not 0 <= v <= MAX_SECONDS:
+                raise TwinError(f'{name} must be in [0, {MAX_SECONDS:g}] s, got {v!r}')
+        targets = self.remaps().values()
+        if '/clock' in targets:
+            raise TwinError('a remap onto /clock is not allowed: /clock carries simulated time '
+                            '(rosgraph_msgs/Clock; the player publishes it with --clock)')
 
     def remaps(self) -> dict[str, str]:
         out = {}
@@ -86,6 +94,13 @@ class PlayOptions:
             out[_absolute(a)] = _absolute(b)
         return out
 
+
+#: the playback rates allowed: slower than 1/1000 never ends a bag of seconds in a day
+RATE_RANGE = (1e-3, 1e6)
+#: the longest delay, offset or playback duration [s] (about 11.6 days)
+MAX_SECONDS = 1e6
+#: the fastest /clock [Hz]
+MAX_CLOCK_HZ = 1e4
 
 #: the player's parameters: rosbag2's ``ros2 bag play`` options
 OPTION_DOCS = {
@@ -171,8 +186,13 @@ class Player(Node):
                 self.warnings.append(f'skipping {name_}: message type {info.type!r} is not '
                                      'installed')
                 continue
-            self.pubs[name_] = self.create_publisher(cls, remaps.get(name_, name_),
-                                                     qos_for(info.qos))
+            target = remaps.get(name_, name_)
+            try:
+                self.pubs[name_] = self.create_publisher(cls, target, qos_for(info.qos))
+            except RCLError as exc:   # e.g. a remap onto a topic of another type
+                raise TwinError(f'cannot publish {name_} ({info.type}) as {target}: '
+                                f'{" ".join(str(exc).split(", at ")[0].split())[:200]}'
+                                ) from None
         self.clock_pub = (self.create_publisher(Clock, '/clock', 10)
                           if options.clock > 0 else None)
         self.paused = options.start_paused

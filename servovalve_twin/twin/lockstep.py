@@ -132,7 +132,9 @@ class Twin:
         self._own_context = context is None
         self.context = context or Context()
         if not self.context.ok():
-            rclpy.init(args=list(args) if args is not None else None, context=self.context,
+            # without ``args``, none: rcl would otherwise read sys.argv, the caller's own
+            # command line, for rules of its own
+            rclpy.init(args=list(args) if args is not None else [], context=self.context,
                        domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
         self.writer = None
         self.live = None

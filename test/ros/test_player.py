@@ -263,3 +263,36 @@ def test_the_player_executable_holds_its_options_as_parameters(ros_context, tmp_
         node.destroy_node()
     print(out, err[-800:])
     assert proc.returncode == 0 and 'Traceback' not in err
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('args,fragment', [
+    (['--rate', '1e-300'], 'rate must be a factor in [0.001, 1e+06]'),
+    (['--start-offset', 'inf'], 'start_offset must be in [0, 1e+06] s'),
+    (['--delay', '1e300'], 'delay must be in [0, 1e+06] s'),
+    (['--playback-duration', 'inf'], 'playback_duration must be in [0, 1e+06] s'),
+    (['--clock', '1e9'], 'clock must be in [0, 10000] Hz'),
+    (['--remap', '/xj:=/clock'], 'a remap onto /clock is not allowed'),
+    (['--remap', '/xj:=/joint_states'], 'cannot publish /xj (std_msgs/msg/Float64) as '
+                                        '/joint_states'),
+])
+def test_play_refuses_what_it_cannot_honour_in_one_line(args, fragment, capsys):
+    """Values that gave tracebacks (infinite offsets, a remap onto a topic of another type)
+    or a playback that never ends (rate 1e-300): one line, exit 2."""
+    from servovalve_twin.cli import main
+    assert main(['play', '@paper_HD', *args]) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and err.count('\n') == 1 and 'Traceback' not in err, err
+
+
+@pytest.mark.ros
+def test_play_values_never_reach_rcl_as_its_own_arguments(tmp_path):
+    """rcl read the whole command line: a --remap value became a (deprecated) global remap
+    rule of rcl's, a --topics value could rename the node. Only the player uses them now."""
+    r = subprocess.run([sys.executable, '-m', 'servovalve_twin.cli', 'play', '@paper_HD', '-r',
+                        '1000', '--remap', '/xj:=/xj_renamed', '--topics', '/xj', '/com',
+                        '__node:=renamed'], capture_output=True, text=True, timeout=300,
+                       cwd=tmp_path)
+    print(r.stdout, r.stderr)
+    assert r.returncode == 0 and '[rcl]' not in r.stderr and 'deprecated' not in r.stderr
+    assert 'play: done: 2002 messages' in r.stdout
