@@ -5,7 +5,8 @@ a target that is a symbolic link is replaced as a link, never written through.
 
 ``output_file(path)`` for text written here, ``output_path(path)`` for a library that writes
 a file itself (pyarrow, matplotlib), ``place_new(built, path)`` for a file built elsewhere that
-must not replace an existing one (the FMU).
+must not replace an existing one (the FMU), ``write_new(path, text)`` for text that must not
+(a designed test, monitor thresholds, a report page).
 """
 
 from __future__ import annotations
@@ -78,4 +79,17 @@ def place_new(built: str | Path, path: str | Path) -> Path:
     return path
 
 
-__all__ = ['output_file', 'output_path', 'place_new']
+def write_new(path: Path, text: str) -> None:
+    """``text`` into a new file (never an existing one, nor through a symbolic link); on
+    any failure the half-written file, ours, is removed."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_NOFOLLOW', 0),
+                 0o644)
+    try:
+        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
+            fh.write(text)
+    except BaseException:
+        path.unlink(missing_ok=True)
+        raise
+
+
+__all__ = ['output_file', 'output_path', 'place_new', 'write_new']

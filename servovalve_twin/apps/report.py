@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 
+from ..outputs import write_new
 from ..physics.characteristic import characteristic
 from ..physics.params import make_params
 from ..physics.signals import MEASURED
@@ -63,8 +64,7 @@ def make_report(*, out_dir: Path, overrides: Mapping[str, Any] | None = None) ->
             f'{platform.python_version()}, numba {numba.__version__}; load average '
             f'{load0:.2f} before, {os.getloadavg()[0]:.2f} after (the step costs move with '
             f'it).\n\n{tables}\n')
-    with open(out_dir / 'report.md', 'x', encoding='utf-8') as fh:
-        fh.write(page)
+    write_new(out_dir / 'report.md', page)
     return page
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-from pathlib import Path
 from typing import Any
 
 
@@ -93,19 +92,6 @@ def algorithm_params(args: argparse.Namespace) -> dict[str, str]:
     from ..twin.config import parse_assignments_text
     return parse_assignments_text(getattr(args, 'algorithm_param', None) or [],
                                   '--algorithm-param')
-
-
-def write_new(path: Path, text: str) -> None:
-    """``text`` into a new file (never an existing one, nor through a symbolic link); on
-    any failure the half-written file, ours, is removed."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_NOFOLLOW', 0),
-                 0o644)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as fh:
-            fh.write(text)
-    except BaseException:
-        path.unlink(missing_ok=True)
-        raise
 
 
 @contextlib.contextmanager

@@ -9,8 +9,9 @@ from pathlib import Path
 from typing import Sequence
 
 from ..errors import TwinError
+from ..outputs import write_new
 from .common import (Command, add_algorithm_options, add_param_options, algorithm_params,
-                     overrides, positive_float, write_new)
+                     overrides, positive_float)
 
 #: the fewest block-bootstrap refits whose percentiles make an interval
 MIN_BOOTSTRAP = 20

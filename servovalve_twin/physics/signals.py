@@ -49,10 +49,5 @@ PORTS: tuple[str, ...] = tuple(s.name for s in SIGNAL_TABLE if s.ports)
 MEASURED: tuple[str, ...] = ('xj', 'dxj', 'p12')
 
 
-def produced_by(source: str) -> tuple[str, ...]:
-    """The signals one subsystem produces."""
-    return tuple(s.name for s in SIGNAL_TABLE if s.source == source)
-
-
 __all__ = ['Signal', 'SIGNAL_TABLE', 'SIGNALS', 'NAMES', 'INPUTS', 'COMMON', 'PORTS',
-           'MEASURED', 'produced_by']
+           'MEASURED']
