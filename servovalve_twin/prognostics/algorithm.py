@@ -101,6 +101,16 @@ class Algorithm:
     def health(self) -> Health | None:
         return None
 
+    def steps(self, t: np.ndarray, u: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, str]]] | None:
+        """Optional: many ticks in one call, exactly as :meth:`step` and :meth:`health` would
+        give them one at a time; hosts holding a whole run (``evaluate``, sweeps) use it, live
+        hosts call :meth:`step`. ``t``: the ticks' times [s]; ``u``: one row per tick, one
+        column per input in ``inputs`` order. Returns the outputs (one row per tick, columns
+        in ``outputs`` order), the health level per tick, and ``(tick, message)`` at each
+        change of level to WARN or ERROR; or None (the default: step one tick at a time)."""
+        return None
+
 
 def _coerce(title: str, name: str, value: Any, default: Any) -> Any:
     kind = type(default)
@@ -204,23 +214,91 @@ class AlgorithmRunner:
                                  f'{type(exc).__name__}: {exc}') from None
         try:
             raw = [out[name] for name in alg.outputs]
-            bad = next((v for v in raw if isinstance(v, bool)
-                        or not isinstance(v, (int, float, np.floating, np.integer))), None)
-            if bad is not None:
-                raise TypeError(f'{bad!r} is not a number')
-            values = {name: float(v) for name, v in zip(alg.outputs, raw)}
-        except (KeyError, TypeError, ValueError, OverflowError) as exc:
-            raise AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: step() must return '
-                                 f'a number for each output {list(alg.outputs)} '
-                                 f'({type(exc).__name__}: {exc})') from None
+        except (KeyError, TypeError) as exc:
+            raise self._bad_outputs(t, exc) from None
+        # every value a float (the common case, checked at C speed), else each a number
+        if set(map(type, raw)) - _FLOAT:
+            bad = next((v for v in raw if isinstance(v, bool) or not isinstance(
+                v, (int, float, np.floating, np.integer))), None)
+            try:
+                if bad is not None:
+                    raise TypeError(f'{bad!r} is not a number')
+                raw = [float(v) for v in raw]
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise self._bad_outputs(t, exc) from None
         if health is not None:
             _check_health(alg, t, health)
-        return values, health
+        return dict(zip(alg.outputs, raw)), health
+
+    def steps(self, t_ns: np.ndarray, u: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, str]]] | None:
+        """The algorithm's :meth:`Algorithm.steps` over ``u``, checked as :meth:`step` checks
+        one tick; None if the algorithm steps one tick at a time."""
+        alg = self.alg
+        t = np.asarray(t_ns, dtype=np.int64) * 1e-9
+        span = f'between t = {t[0]:.3f} and {t[-1]:.3f} s' if len(t) else 'on no ticks'
+        try:
+            block = alg.steps(t, u)
+        except TwinError as exc:
+            raise AlgorithmError(f'algorithm {alg.title} {span}: {exc}') from None
+        except (Exception, SystemExit) as exc:  # noqa: BLE001 -- the user's code
+            raise AlgorithmError(f'algorithm {alg.title} raised {span}: '
+                                 f'{type(exc).__name__}: {exc}') from None
+        if block is None:
+            return None
+        try:
+            out, level, messages = block
+            out = np.asarray(out, dtype=float)
+            level = np.asarray(level)
+            if out.shape != (len(t), len(alg.outputs)) or level.shape != (len(t),):
+                raise ValueError(f'outputs of shape {out.shape} and levels of shape '
+                                 f'{level.shape} for {len(t)} ticks')
+            if not np.isin(level, list(LEVEL_NAMES)).all():
+                raise ValueError(f'a health level outside {sorted(LEVEL_NAMES)}')
+            messages = [(int(k), m) for k, m in messages]
+            if not all(isinstance(m, str) for _, m in messages):
+                raise ValueError('a message that is not a string')
+        except (TypeError, ValueError) as exc:
+            raise AlgorithmError(f'algorithm {alg.title} {span}: steps() must return '
+                                 f'(outputs, levels, messages) as documented ({exc})') from None
+        return out, level.astype(np.int8), messages
+
+    def _bad_outputs(self, t: float, exc: Exception) -> AlgorithmError:
+        alg = self.alg
+        return AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: step() must return '
+                              f'a number for each output {list(alg.outputs)} '
+                              f'({type(exc).__name__}: {exc})')
+
+
+_FLOAT = {float}
+_STR = {str}
+
+
+def _step_by_step(runner: AlgorithmRunner, t_ns: np.ndarray, table: np.ndarray):
+    """:meth:`AlgorithmRunner.step` tick after tick, as :meth:`Algorithm.steps` returns."""
+    names = runner.alg.inputs
+    out: list[list[float]] = []
+    level = np.zeros(len(t_ns), dtype=np.int8)
+    changes = []
+    last = OK
+    for k, (t, row) in enumerate(zip(np.asarray(t_ns, dtype=np.int64).tolist(),
+                                     table.tolist())):
+        values, health = runner.step(t, dict(zip(names, row)))
+        out.append(list(values.values()))
+        now = OK if health is None else health.level
+        if now != last and now:
+            changes.append((k, health.message))
+        level[k] = last = now
+    return np.array(out, dtype=float).reshape(len(out), len(runner.alg.outputs)), level, changes
 
 
 def _check_health(alg: Algorithm, t: float, health: Any) -> None:
     """A Health with a level of OK, WARN or ERROR, a string message and string keys: what
     diagnostic_msgs can carry, and what sweeps score."""
+    if type(health) is Health and type(health.level) is int and health.level in LEVEL_NAMES \
+            and type(health.message) is str and type(health.values) is dict \
+            and not set(map(type, health.values)) - _STR:
+        return                              # the common case, checked at C speed
     where = f'algorithm {alg.title} at t = {t:.3f} s: health()'
     if not isinstance(health, Health):
         raise AlgorithmError(f'{where} must return a Health or None, got '
@@ -259,16 +337,14 @@ def run_algorithm(alg: Algorithm, t_ns: np.ndarray, inputs: Mapping[str, np.ndar
         raise AlgorithmError(f'algorithm {alg.title} reads {missing[0]!r}, which the run does '
                              f'not have (it has {sorted(inputs)})')
     runner = AlgorithmRunner(alg, period, nominal)
-    cols = {s: np.asarray(inputs[s], dtype=float).tolist() for s in alg.inputs}
-    out = {name: np.empty(len(t_ns)) for name in alg.outputs}
-    level = np.zeros(len(t_ns), dtype=np.int8)
-    messages = []
-    for k, t in enumerate(np.asarray(t_ns, dtype=np.int64).tolist()):
-        values, health = runner.step(t, {s: cols[s][k] for s in cols})
-        for name, v in values.items():
-            out[name][k] = v
-        if health is not None:
-            level[k] = health.level
-            if health.level and (not messages or messages[-1] != health.message):
-                messages.append(health.message)
-    return AlgorithmRun(alg.title, np.asarray(t_ns) * 1e-9, out, level, messages)
+    names = alg.inputs
+    table = np.empty((len(t_ns), len(names)))
+    for j, s in enumerate(names):
+        table[:, j] = inputs[s]
+    block = runner.steps(t_ns, table)
+    if block is None:
+        block = _step_by_step(runner, t_ns, table)
+    out, level, changes = block
+    outputs = {name: out[:, j].copy() for j, name in enumerate(alg.outputs)}
+    messages = [m for _, m in changes]
+    return AlgorithmRun(alg.title, np.asarray(t_ns) * 1e-9, outputs, level, messages)

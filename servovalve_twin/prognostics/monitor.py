@@ -18,8 +18,9 @@ thresholds (``data/monitor_calibration.json``, rebuilt by ``bench/calibrate_moni
 every monitor model's defaults; ``servovalve-twin monitor-thresholds`` computes them for your
 own flights.
 
-The same :class:`HealthFilter` serves the ROS-free sweeps (whole arrays) and the ROS monitor
-node (one sample per tick).
+Every host steps the same compiled tick (:mod:`.monitor_loop`): the ROS monitor node one
+row per control period, ``evaluate``, sweeps and :func:`monitor_run` a whole run's rows in one
+call (:meth:`MonitorAlgorithm.steps`), so the monitor a sweep scores is the one that runs live.
 """
 
 from __future__ import annotations
@@ -27,19 +28,20 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections import deque
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import TwinError
+from ..errors import ModelError, TwinError
 from ..physics.params import EhaParams
-from ..physics.scenario import Scenario
-from ..physics.simulate import RunResult, effective_params, simulate
-from ..physics.signals import INPUTS, MEASURED
+from ..physics.simulate import OUTPUT_PERIOD_NS, RunResult, effective_params, simulate
+from ..physics.signals import MEASURED, SIGNALS
 from ..physics.valves import get_monitor_model
 from .algorithm import Algorithm, Health
+from .monitor_loop import (DONE, OUT_COLUMNS, U_COLUMNS, W_BAD_COL, W_BAD_ROW, W_BOUND,
+                           W_DROPPED, W_GOOD, W_LAST_OUT, W_LEVEL, W_THR, monitor_rows,
+                           new_state, reset_window)
 
 RESIDUALS = MEASURED
 OK, WARN, ERROR = 0, 1, 2
@@ -94,14 +96,6 @@ class HealthConfig:
         return cls(**calibrated_thresholds(model))
 
 
-def moving_rms(x: np.ndarray, n: int) -> np.ndarray:
-    """RMS over the last ``n`` samples (fewer at the start), sample by sample."""
-    c = np.concatenate([[0.0], np.cumsum(np.asarray(x, dtype=float) ** 2)])
-    i = np.arange(1, len(x) + 1)
-    lo = np.maximum(i - n, 0)
-    return np.sqrt((c[i] - c[lo]) / (i - lo))
-
-
 @dataclasses.dataclass
 class MonitorResult:
     t: np.ndarray
@@ -124,28 +118,26 @@ class MonitorResult:
         out['max_level'] = int(self.level.max())
         return out
 
-
-def assess(t: np.ndarray, residuals: Mapping[str, np.ndarray],
-           config: HealthConfig = HealthConfig()) -> MonitorResult:
-    n = max(1, int(round(config.window / 1e-3)))
-    ind = {s: moving_rms(residuals[s], n) for s in RESIDUALS}
-    level = np.zeros(len(t), dtype=np.int64)
-    for s in RESIDUALS:
-        warn, err = config.thresholds(s)
-        level = np.maximum(level, np.where(ind[s] > err, ERROR, np.where(ind[s] > warn, WARN, OK)))
-    return MonitorResult(t=np.asarray(t), residuals=dict(residuals), indicators=ind,
-                         level=level, config=config)
+    @classmethod
+    def of(cls, run, config: HealthConfig) -> 'MonitorResult':
+        """The built-in monitor's :class:`~.algorithm.AlgorithmRun` as residuals and
+        indicators per measured signal."""
+        return cls(t=run.t, residuals={s: run.outputs[f'residual_{s}'] for s in RESIDUALS},
+                   indicators={s: run.outputs[f'health_{s}'] for s in RESIDUALS},
+                   level=run.level.astype(np.int64), config=config)
 
 
 def monitor_run(run: RunResult, model: str = DEFAULT_MONITOR_MODEL,
                 config: HealthConfig | None = None, nominal: EhaParams | None = None
                 ) -> MonitorResult:
-    """Run the monitor model on ``run``'s inputs with nominal parameters (by default the run's
-    parameters before any fault event) and assess the residuals."""
-    scn: Scenario = run.scenario.without_faults()
-    ref = simulate(model, scn, params=nominal or run.params, ecu_period=run.ecu_period)
-    residuals = {s: run[s] - ref[s] for s in RESIDUALS}
-    return assess(run['t'], residuals, config or HealthConfig.for_model(model))
+    """The monitor on ``run``'s 1 ms rows, as the twin's ``monitor`` node steps it live: the
+    monitor model with nominal parameters (by default the run's before any fault event) and
+    ``config`` (by default the model's calibrated one)."""
+    from .algorithm import run_algorithm
+    alg = MonitorAlgorithm.with_config(model, config)
+    t_ns = np.arange(len(run['t']), dtype=np.int64) * OUTPUT_PERIOD_NS
+    res = run_algorithm(alg, t_ns, run.signals, OUTPUT_PERIOD_NS * 1e-9, nominal or run.params)
+    return MonitorResult.of(res, alg.config)
 
 
 def chirp(f0: float, f1: float, amplitude: float, duration: float, load: float
@@ -189,29 +181,28 @@ def healthy_peaks(models: Sequence[str], flights: Mapping[str, Any], units: int,
                   ) -> dict[str, dict[str, list[float]]]:
     """Per monitor model and residual, the peak indicator of each healthy HD unit's run
     (``units`` per flight, nuisance within ``spread`` x the documented spread, documented
-    noise); each HD run serves every model."""
+    noise), the monitor stepped as it runs live; each HD run serves every model."""
     from ..config import load_scenario
     from ..physics.params import DEFAULTS
     from .calibration import NOISE, VARY
     from .sweep import draw_nuisance, measured
     rng = np.random.default_rng(seed)
     peaks = {m: {s: [] for s in RESIDUALS} for m in models}
-    n = max(1, int(round(window / 1e-3)))
+    # thresholds play no part in the peaks: the hand-set ones serve a model not yet calibrated
+    config = HealthConfig(window=window)
     for name in flights:
         scn = load_scenario(flights[name])
-        # each monitor model on the flight's inputs with the design values: the same for
-        # every unit, so run once per flight
-        refs = {m: simulate(m, scn.without_faults(), params=effective_params(scn),
-                            ecu_period=1e-3) for m in models}
+        design = effective_params(scn)
         for _ in range(units):
             unit = DEFAULTS.replace(**draw_nuisance(
                 rng, {k: v * spread for k, v in VARY.items()}, DEFAULTS))
             run = simulate('HD', scn, params=effective_params(scn, None, unit),
                            ecu_period=1e-3)
-            sig = measured(run.signals, NOISE, rng)
-            for m, ref in refs.items():
+            noisy = dataclasses.replace(run, signals=measured(run.signals, NOISE, rng))
+            for m in models:
+                mon = monitor_run(noisy, m, config, nominal=design)
                 for s in RESIDUALS:
-                    peaks[m][s].append(float(moving_rms(sig[s] - ref[s], n).max()))
+                    peaks[m][s].append(float(mon.indicators[s].max()))
     return peaks
 
 
@@ -254,31 +245,6 @@ def calibrated_thresholds(model: str) -> dict[str, float]:
     return dict(cal[model])
 
 
-class HealthFilter:
-    """The same assessment one sample at a time (the ROS monitor node)."""
-
-    def __init__(self, config: HealthConfig = HealthConfig(), period: float = 1e-3):
-        self.config = config
-        self.n = max(1, int(round(config.window / period)))
-        self._sq = {s: deque() for s in RESIDUALS}
-        self._sum = {s: 0.0 for s in RESIDUALS}
-
-    def update(self, residuals: Mapping[str, float]) -> tuple[int, dict[str, float]]:
-        ind = {}
-        level = OK
-        for s in RESIDUALS:
-            q = self._sq[s]
-            v = float(residuals[s]) ** 2
-            q.append(v)
-            self._sum[s] += v
-            if len(q) > self.n:
-                self._sum[s] -= q.popleft()
-            ind[s] = math.sqrt(max(self._sum[s], 0.0) / len(q))
-            warn, err = self.config.thresholds(s)
-            level = max(level, ERROR if ind[s] > err else WARN if ind[s] > warn else OK)
-        return level, ind
-
-
 def config_from(values: Mapping[str, Any]) -> HealthConfig:
     fields = {f.name for f in dataclasses.fields(HealthConfig)}
     return HealthConfig(**{k: float(v) for k, v in values.items() if k in fields})
@@ -288,11 +254,12 @@ class MonitorAlgorithm(Algorithm):
     """The built-in residual monitor as an :class:`~.algorithm.Algorithm`: the monitor model
     (ECU law, servovalve, the chosen simplified valve, jack, with the nominal parameters) runs
     on the plant's inputs; outputs the residuals plant - model and their moving RMS; health is
-    the worst threshold crossed. Hosted live by the ``monitor`` node, on bags by ``evaluate``
-    and in sweeps -- the same per-tick code as :func:`monitor_run`'s arrays (tested equal)."""
+    the worst threshold crossed. Hosted live by the ``monitor`` node, on bags by ``evaluate``,
+    on runs by :func:`monitor_run` and sweeps: every host steps the one compiled tick
+    (:mod:`.monitor_loop`)."""
 
-    inputs = INPUTS + MEASURED
-    outputs = tuple(f'residual_{s}' for s in RESIDUALS) + tuple(f'health_{s}' for s in RESIDUALS)
+    inputs = U_COLUMNS
+    outputs = OUT_COLUMNS
     parameters = {'monitor_model': DEFAULT_MONITOR_MODEL, 'window': 0.0, 'warn_xj': 0.0,
                   'error_xj': 0.0, 'warn_dxj': 0.0, 'error_dxj': 0.0, 'warn_p12': 0.0,
                   'error_p12': 0.0}
@@ -301,57 +268,76 @@ class MonitorAlgorithm(Algorithm):
     def __init__(self, **params):
         super().__init__(**params)
         get_monitor_model(self.params['monitor_model'])
-        # thresholds left at 0 take the monitor model's defaults (its registry entry)
-        base = HealthConfig.for_model(self.params['monitor_model'])
-        self.config = HealthConfig(**{f.name: (self.params[f.name] or getattr(base, f.name))
-                                      for f in dataclasses.fields(HealthConfig)})
+        # thresholds left at 0 take the monitor model's calibrated ones
+        fields = [f.name for f in dataclasses.fields(HealthConfig)]
+        given = {f: self.params[f] for f in fields if self.params[f]}
+        base = ({} if len(given) == len(fields)
+                else dataclasses.asdict(HealthConfig.for_model(self.params['monitor_model'])))
+        self.config = HealthConfig(**{**base, **given})
         self.plant = None
-        self.filter = None
-        self.level = OK
-        self._last = None
-        self._outputs = None
-        self._inputs = None
-        #: samples dropped as implausible (a glitch of 1e300 must not end the monitor), and
-        #: the last one, named
-        self.dropped = 0
+        self._w = self._ring = None
+        # one row in, one row out: preallocated, a tick allocates no array
+        self._u1 = np.zeros((1, len(U_COLUMNS)))
+        self._out1 = np.zeros((1, len(OUT_COLUMNS)))
+        self._lev1 = np.zeros(1, dtype=np.int8)
+        #: the last implausible sample dropped, named (a glitch of 1e300 must not end the
+        #: monitor: it is dropped and counted, see :attr:`dropped`)
         self.last_dropped = ''
+
+    @classmethod
+    def with_config(cls, model: str = DEFAULT_MONITOR_MODEL,
+                    config: HealthConfig | None = None) -> 'MonitorAlgorithm':
+        """The monitor of ``model`` with ``config`` (by default the model's calibrated one)."""
+        if config is None:
+            return cls(monitor_model=model)
+        return cls(monitor_model=model, **dataclasses.asdict(config))
 
     @property
     def title(self) -> str:
         return 'EHA monitor'
 
+    @property
+    def dropped(self) -> int:
+        """Samples dropped as implausible so far."""
+        return 0 if self._w is None else int(self._w[W_DROPPED])
+
+    @property
+    def level(self) -> int:
+        return OK if self._w is None else int(self._w[W_LEVEL])
+
     def setup(self, period: float, nominal) -> None:
-        from ..physics.simulate import EhaPlant, steps_per
+        from ..physics.simulate import steps_per
         self.n_sub = steps_per(period, nominal, 'the control period')
-        self.plant = EhaPlant(self.params['monitor_model'], nominal)
         super().setup(period, nominal)
 
     def reset(self) -> None:
         from ..physics.simulate import EhaPlant
-        if self.nominal is not None:
-            self.plant = EhaPlant(self.params['monitor_model'], self.nominal)
-        self.filter = HealthFilter(self.config, self.period or 1e-3)
-        self.level = OK
-        self._outputs = self._inputs = None
-        self.dropped = 0
+        if self.nominal is None:
+            return
+        self.plant = EhaPlant(self.params['monitor_model'], self.nominal)
+        self._w = new_state(self._bounds(self.nominal), self._thresholds())
+        self._ring = np.zeros((len(RESIDUALS), self._window_rows()))
         self.last_dropped = ''
 
-    def implausible(self, u) -> str | None:
-        """The first input no actuator can produce -- not finite, a jack beyond twice its end
-        stops, a speed beyond 100 m/s, a pressure beyond ten supplies -- or None."""
-        n = self.nominal
-        bounds = {'com': 10 * n.XJM, 'xj': 2 * n.XJM, 'dxj': 100.0, 'fr': 1e9,
-                  'psr': 10 * n.PSRN, 'p12': 10 * n.PSRN}
-        for name, bound in bounds.items():
-            v = u[name]
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and abs(v) <= bound):
-                return f'{name} = {v!r} at t = {{t:.3f}} s'
-        return None
+    def _window_rows(self) -> int:
+        return max(1, int(round(self.config.window / (self.period or 1e-3))))
+
+    def _thresholds(self):
+        return [self.config.thresholds(s) for s in RESIDUALS]
+
+    @staticmethod
+    def _bounds(n) -> list[float]:
+        """What no actuator produces: a command beyond ten strokes, a jack beyond twice its
+        end stops, a speed beyond 100 m/s, a load beyond 1 GN, a pressure beyond ten supplies."""
+        bound = {'com': 10 * n.XJM, 'xj': 2 * n.XJM, 'dxj': 100.0, 'fr': 1e9,
+                 'psr': 10 * n.PSRN, 'p12': 10 * n.PSRN}
+        return [bound[c] for c in U_COLUMNS]
 
     def set_nominal(self, nominal) -> None:
         """New nominal parameters (the node's parameters changed); the state is kept."""
         self.nominal = nominal
         self.plant.set_params(nominal)
+        self._w[W_BOUND:W_BOUND + len(U_COLUMNS)] = self._bounds(nominal)
 
     def set_monitor_model(self, name: str) -> None:
         get_monitor_model(name)
@@ -359,51 +345,73 @@ class MonitorAlgorithm(Algorithm):
         self.plant.set_valve_model(name)
 
     def set_config(self, config: HealthConfig) -> None:
+        """New thresholds or window: the moving RMS starts afresh, the model runs on."""
         self.config = config
-        self.filter = HealthFilter(config, self.period or 1e-3)
+        if self._w is not None:
+            self._ring = np.zeros((len(RESIDUALS), self._window_rows()))
+            reset_window(self._w, self._ring, self._thresholds())
 
     def step(self, t, u):
-        bad = self.implausible(u)
-        if bad is not None:
-            # a sensor glitch: the sample is dropped, the model runs on with the last good
-            # inputs and the outputs hold; the monitor goes on
-            self.dropped += 1
-            self.last_dropped = bad.format(t=t)
-            if self._inputs is None:            # nothing good yet: the model stays at rest
-                return {name: 0.0 for name in self.outputs}
-            self._tick(self._inputs, assess=False)
-            return self._outputs
-        self._inputs = u
-        self._outputs = self._tick(u)
-        return self._outputs
+        row = self._u1[0]
+        for c, name in enumerate(U_COLUMNS):
+            v = u[name]
+            # anything but a number is as implausible as 1e300 (a string must not parse)
+            try:
+                row[c] = v if isinstance(v, (int, float)) and not isinstance(v, bool) \
+                    else math.nan
+            except OverflowError:               # an int beyond any float
+                row[c] = math.nan
+        self._advance([t], self._u1, self._out1, self._lev1, False, u)
+        return dict(zip(OUT_COLUMNS, self._out1[0].tolist()))
 
-    def _tick(self, u, assess: bool = True):
-        # the monitor's own loop: its ECU sees its own XJ, as the real ECU sees the plant's
-        m = self.plant
-        xj_m, dxj_m = m.xj, m.dxj
-        cor = m.control(u['com'], xj_m)
-        p12_m = float(m.tick(cor, u['fr'], u['psr'], self.n_sub)[0])
-        residual = {'xj': u['xj'] - xj_m, 'dxj': u['dxj'] - dxj_m, 'p12': u['p12'] - p12_m}
-        if not assess:                        # a dropped sample's tick: the model only
-            return None
-        self.level, ind = self.filter.update(residual)
-        self._last = residual, ind
-        return {**{f'residual_{s}': residual[s] for s in RESIDUALS},
-                **{f'health_{s}': ind[s] for s in RESIDUALS}}
+    def steps(self, t, u):
+        """Every row of ``u`` through the same compiled tick as :meth:`step`, stopping at each
+        change of level to take the health message there."""
+        n = len(u)
+        out = np.empty((n, len(OUT_COLUMNS)))
+        level = np.empty(n, dtype=np.int8)
+        messages = []
+        i = 0
+        while i < n:
+            done = self._advance(t[i:], u[i:], out[i:], level[i:], True)
+            if done < 0:
+                break
+            i += done + 1
+            if level[i - 1]:
+                messages.append((i - 1, self.health().message))
+        return out, level, messages
+
+    def _advance(self, t, u, out, level, stop_on_change, given=None) -> int:
+        w = self._w
+        dropped = w[W_DROPPED]
+        p = self.plant
+        r = monitor_rows(p.model.id, p.s, p.vs, p._kernel_arr, self.n_sub, u, w, self._ring,
+                         out, level, stop_on_change)
+        if r < DONE:
+            raise ModelError(f'monitor model {p.model.name} failed to converge at '
+                             f't = {t[-2 - r]:.3f} s')
+        if w[W_DROPPED] != dropped:
+            k, c = int(w[W_BAD_ROW]), int(w[W_BAD_COL])
+            value = float(u[k, c]) if given is None else given[U_COLUMNS[c]]
+            self.last_dropped = f'{U_COLUMNS[c]} = {value!r} at t = {t[k]:.3f} s'
+        return r
 
     def health(self) -> Health:
-        if self._last is None:
+        w = self._w
+        if w[W_GOOD] == 0.0:
             return Health(OK, f'no plausible sample yet; {self.dropped} dropped (last: '
                               f'{self.last_dropped})', {'dropped_samples': self.dropped})
-        residual, ind = self._last
-        worst = max(RESIDUALS, key=lambda s: ind[s] / self.config.thresholds(s)[1])
-        unit = {'xj': 'm', 'dxj': 'm/s', 'p12': 'Pa'}[worst]
-        message = (f'{LEVEL_NAMES[self.level]}: largest residual {worst.upper()} '
-                   f'(moving RMS {ind[worst]:.4g} {unit}, relative to its ERROR threshold) '
-                   f'against model {self.plant.model.name}')
-        values = {**{f'residual_{s}': residual[s] for s in RESIDUALS},
-                  **{f'health_{s}': ind[s] for s in RESIDUALS}}
+        out = w[W_LAST_OUT:W_LAST_OUT + len(OUT_COLUMNS)].tolist()
+        values = dict(zip(OUT_COLUMNS, out))
+        nm = len(RESIDUALS)
+        ratios = [out[nm + m] / w[W_THR + 2 * m + 1] for m in range(nm)]
+        m = ratios.index(max(ratios))
+        worst = RESIDUALS[m]
+        level = int(w[W_LEVEL])
+        message = (f'{LEVEL_NAMES[level]}: largest residual {worst.upper()} '
+                   f'(moving RMS {out[nm + m]:.4g} {SIGNALS[worst].unit}, relative to its '
+                   f'ERROR threshold) against model {self.plant.model.name}')
         if self.dropped:
             message += f'; {self.dropped} implausible samples dropped (last: {self.last_dropped})'
             values['dropped_samples'] = self.dropped
-        return Health(self.level, message, values)
+        return Health(level, message, values)

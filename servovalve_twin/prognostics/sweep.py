@@ -33,7 +33,8 @@ from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, make_params
 from ..physics.simulate import simulate
 from ..progress import progress
-from .monitor import DEFAULT_MONITOR_MODEL, ERROR, WARN, HealthConfig, monitor_run
+from .monitor import (DEFAULT_MONITOR_MODEL, ERROR, WARN, HealthConfig, MonitorAlgorithm,
+                      MonitorResult)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,18 +70,7 @@ def run_case(case: Case, traces: bool = True) -> dict[str, Any]:
     actual = make_params(dict(scn.params) | dict(case.params))
     design = make_params(dict(scn.params) | dict(case.design))
     run = simulate(case.plant_model, raw, params=actual, ecu_period=case.ecu_period)
-    if case.algorithm is not None:
-        features, trace_arrays, alarm, warn = _algorithm_case(case, run, design)
-    else:
-        config = (HealthConfig(**case.thresholds) if case.thresholds
-                  else HealthConfig.for_model(case.monitor_model))
-        mon = monitor_run(run, case.monitor_model, config, nominal=design)
-        alarm = mon.first_alarm(ERROR)
-        warn = mon.first_alarm(WARN)
-        features = mon.features()
-        trace_arrays = dict(t=mon.t, level=mon.level.astype(np.int8),
-                      **{f'res_{k}': v for k, v in mon.residuals.items()},
-                      **{f'ind_{k}': v for k, v in mon.indicators.items()})
+    features, trace_arrays, alarm, warn = _algorithm_case(case, run, design)
     before = alarm is not None and alarm < case.onset
     row: dict[str, Any] = dict(
         run_id=case.run_id, plant_model=case.plant_model, monitor_model=case.monitor_model,
@@ -98,16 +88,28 @@ def run_case(case: Case, traces: bool = True) -> dict[str, Any]:
 
 
 def _algorithm_case(case: Case, run, design):
-    """The user's algorithm on the run's 1 ms rows -- the ticks the twin's lockstep feeds it
-    live at a 1 ms control period (the twin equals simulate with that ECU period)."""
+    """The monitor, or the user's algorithm, on the run's 1 ms rows -- the ticks the twin's
+    lockstep feeds it live at a 1 ms control period (the twin equals simulate with that ECU
+    period). The built-in monitor's features and traces keep their names (``peak_rms_*``,
+    ``res_*``, ``ind_*``); an algorithm's are named after its outputs."""
     from ..physics.simulate import OUTPUT_PERIOD_NS
     from .algorithm import load_algorithm, run_algorithm
     if int(round(case.ecu_period * 1e9)) != OUTPUT_PERIOD_NS:
-        raise TwinError('an algorithm in a sweep runs at the 1 ms control period, got '
-                        f'{case.ecu_period} s')
-    alg = load_algorithm(case.algorithm, case.algorithm_params)
+        raise TwinError('the monitor or an algorithm in a sweep runs at the 1 ms control '
+                        f'period, got {case.ecu_period} s')
+    if case.algorithm is None:
+        alg = MonitorAlgorithm.with_config(
+            case.monitor_model, HealthConfig(**case.thresholds) if case.thresholds else None)
+    else:
+        alg = load_algorithm(case.algorithm, case.algorithm_params)
     t_ns = np.arange(len(run['t']), dtype=np.int64) * OUTPUT_PERIOD_NS
     res = run_algorithm(alg, t_ns, run.signals, case.ecu_period, design)
+    if case.algorithm is None:
+        mon = MonitorResult.of(res, alg.config)
+        return (mon.features(), dict(t=mon.t, level=mon.level.astype(np.int8),
+                                     **{f'res_{k}': v for k, v in mon.residuals.items()},
+                                     **{f'ind_{k}': v for k, v in mon.indicators.items()}),
+                mon.first_alarm(ERROR), mon.first_alarm(WARN))
     features = {f'peak_{k}': float(np.max(v)) for k, v in res.outputs.items()}
     features.update({f'mean_abs_{k}': float(np.mean(np.abs(v))) for k, v in res.outputs.items()})
     features['max_level'] = int(res.level.max())

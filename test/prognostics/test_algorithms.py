@@ -19,7 +19,7 @@ from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.cli import main
 from servovalve_twin.config import load_scenario
 from servovalve_twin.errors import TwinError
-from servovalve_twin.prognostics import Algorithm, AlgorithmError
+from servovalve_twin.prognostics import ERROR, WARN, Algorithm, AlgorithmError
 from servovalve_twin.prognostics.algorithm import load_algorithm
 from servovalve_twin.prognostics.monitor import MonitorAlgorithm
 from servovalve_twin.prognostics.sweep import make_cases, run_case, run_cases
@@ -299,3 +299,58 @@ def test_a_misbehaving_algorithm_is_one_error_naming_it(how, fragment):
     with pytest.raises(AlgorithmError, match=fragment):
         alg = load_algorithm(_Bad, {'how': how})
         run_algorithm(alg, np.array([0, 1_000_000]), {'xj': np.zeros(2)}, 1e-3, DEFAULTS)
+
+
+class _Steps(Algorithm):
+    """A threshold on xj, tick by tick and, unless ``how`` says otherwise, in one call."""
+
+    inputs = ('xj',)
+    outputs = ('y',)
+    parameters = {'how': 'right'}
+
+    def step(self, t, u):
+        self._y = 2.0 * u['xj'] + t
+        return {'y': self._y}
+
+    def health(self):
+        from servovalve_twin.prognostics import Health
+        level = ERROR if self._y > 0.5 else WARN if self._y > 0.2 else 0
+        return Health(level, f'level {level}')
+
+    def steps(self, t, u):
+        how = self.params['how']
+        if how == 'none':
+            return None
+        y = 2.0 * u[:, 0] + t
+        level = np.where(y > 0.5, ERROR, np.where(y > 0.2, WARN, 0))
+        if how == 'shape':
+            return y[:-1, None], level, []
+        if how == 'level':
+            return y[:, None], level + 5, []
+        if how == 'raise':
+            raise ZeroDivisionError('boom in steps')
+        changes = [(int(k), f'level {level[k]}') for k in range(len(y))
+                   if level[k] and (k == 0 or level[k] != level[k - 1])]
+        return y[:, None], level, changes
+
+
+def test_an_algorithms_steps_is_what_stepping_gives_and_is_checked():
+    """A host holding a whole run uses ``steps``; its result is the tick-by-tick one (outputs,
+    levels, a message at each change of level, WARN -> ERROR included) and a wrong shape, a
+    level outside OK/WARN/ERROR or an exception is one error naming the algorithm."""
+    from servovalve_twin.physics.params import DEFAULTS
+    from servovalve_twin.prognostics.algorithm import run_algorithm
+    t_ns = np.arange(600, dtype=np.int64) * 1_000_000
+    xj = {'xj': np.full(600, 0.05)}
+    block = run_algorithm(_Steps(), t_ns, xj, 1e-3, DEFAULTS)
+    ticks = run_algorithm(_Steps(how='none'), t_ns, xj, 1e-3, DEFAULTS)
+    np.testing.assert_array_equal(block.outputs['y'], 0.1 + t_ns * 1e-9)
+    np.testing.assert_array_equal(block.outputs['y'], ticks.outputs['y'])
+    np.testing.assert_array_equal(block.level, ticks.level)
+    assert ticks.messages == block.messages == ['level 1', 'level 2']
+    assert ticks.first(WARN) == pytest.approx(0.101) and ticks.first(ERROR) == \
+        pytest.approx(0.401)
+    for how, fragment in (('shape', 'outputs of shape'), ('level', 'a health level outside'),
+                          ('raise', 'raised between t = 0.000 and 0.599 s: ZeroDivisionError')):
+        with pytest.raises(AlgorithmError, match=fragment):
+            run_algorithm(_Steps(how=how), t_ns, xj, 1e-3, DEFAULTS)

@@ -140,14 +140,56 @@ def test_health_thresholds_are_ordered():
         HealthConfig(window=0.0)
 
 
-def test_health_filter_matches_the_array_assessment():
-    from servovalve_twin.prognostics.monitor import HealthFilter
-    m = monitor_run(faulted('leakage_growth', 10.0, at=0.1), nominal=DEFAULTS)
+def moving_rms(x, n):
+    """RMS over the last n samples (fewer at the start), by cumulative sums: a reference that
+    shares nothing with the monitor's ring of squares."""
+    c = np.concatenate([[0.0], np.cumsum(np.asarray(x) ** 2)])
+    i = np.arange(1, len(x) + 1)
+    lo = np.maximum(i - n, 0)
+    return np.sqrt((c[i] - c[lo]) / (i - lo))
+
+
+def test_monitor_against_an_independent_reference():
+    """The monitor's residuals are the plant's rows minus the monitor model simulated on the
+    scenario by simulate's own loop (the paper's inputs change on whole milliseconds, so the
+    monitor's inputs held over each tick are the scenario's); its indicators the moving RMS
+    of those over the window; its level the worst threshold they cross."""
+    r = faulted('leakage_growth', 10.0, at=0.1)
+    m = monitor_run(r, nominal=DEFAULTS)
+    ref = simulate('SQ', dict(PAPER), params=DEFAULTS, ecu_period=1e-3)
+    n = int(round(m.config.window / 1e-3))
+    level = np.zeros(len(m.t), dtype=int)
+    for s in RESIDUALS:
+        res = r[s] - ref[s]
+        scale = float(np.max(np.abs(res)))
+        np.testing.assert_allclose(m.residuals[s], res, rtol=0, atol=1e-9 * scale)
+        np.testing.assert_allclose(m.indicators[s], moving_rms(res, n), rtol=1e-9,
+                                   atol=1e-12 * scale)
+        warn, err = m.config.thresholds(s)
+        level = np.maximum(level, np.where(m.indicators[s] > err, ERROR,
+                                           np.where(m.indicators[s] > warn, WARN, OK)))
     assert {OK, WARN, ERROR} <= set(m.level.tolist())
-    f = HealthFilter(m.config, 1e-3)
-    levels = [f.update({s: m.residuals[s][i] for s in m.residuals})[0]
-              for i in range(len(m.t))]
-    np.testing.assert_array_equal(levels, m.level)
+    np.testing.assert_array_equal(m.level, level)
+
+
+def test_the_monitor_in_one_call_equals_the_monitor_tick_by_tick():
+    """``steps`` (a whole run, stopping at each change of level) gives the outputs, levels and
+    messages of ``step`` and ``health`` called tick after tick -- a sample dropped on the way."""
+    from servovalve_twin.prognostics.algorithm import AlgorithmRunner, _step_by_step
+    from servovalve_twin.prognostics.monitor import MonitorAlgorithm
+    r = faulted('leakage_growth', 10.0, at=0.1)
+    table = np.column_stack([r[s] for s in MonitorAlgorithm.inputs])
+    table[300, 3] = 1e300                                  # xj: dropped
+    t_ns = np.arange(len(table), dtype=np.int64) * 1_000_000
+    one = AlgorithmRunner(MonitorAlgorithm(), 1e-3, DEFAULTS)
+    many = AlgorithmRunner(MonitorAlgorithm(), 1e-3, DEFAULTS)
+    out_1, level_1, msg_1 = _step_by_step(one, t_ns, table)
+    out_n, level_n, msg_n = many.steps(t_ns, table)
+    np.testing.assert_array_equal(out_n, out_1)
+    np.testing.assert_array_equal(level_n, level_1)
+    assert msg_n == msg_1 and len(msg_1) >= 2
+    assert one.alg.dropped == many.alg.dropped == 1
+    assert one.alg.last_dropped == many.alg.last_dropped == 'xj = 1e+300 at t = 0.300 s'
 
 
 def same_rows(a, b):
