@@ -50,7 +50,7 @@ def main() -> None:
         for _ in range(args.units):
             unit = DEFAULTS.replace(**draw_nuisance(rng, {k: 1.5 * v for k, v in VARY.items()},
                                                     DEFAULTS))
-            run = simulate('HD', scn, params=unit.replace(**dict(scn.params)))
+            run = simulate('HD', scn, params=unit.replace(**dict(scn.params)), ecu_period=1e-3)
             gain = float(np.exp(rng.uniform(np.log(0.5), np.log(2.0))))
             run.signals.update(measured(run.signals, {k: gain * v for k, v in NOISE.items()},
                                         rng))
@@ -66,7 +66,8 @@ def main() -> None:
     cases = [(f, FAULTS[f].demo) for f in FAULTS] + [('leakage_growth', 3.0)]
     detect = {m: {} for m in models}
     for f, sev in cases:
-        run = simulate('HD', dict(paper, faults=[dict(at=0.1, fault=f, severity=sev)]))
+        run = simulate('HD', dict(paper, faults=[dict(at=0.1, fault=f, severity=sev)]),
+                       ecu_period=1e-3)
         run.signals.update(measured(run.signals, NOISE, rng))
         for m in models:
             mon = monitor_run(run, m, nominal=DEFAULTS)

@@ -132,8 +132,16 @@ def monitor_run(run: RunResult, model: str = DEFAULT_MONITOR_MODEL,
                 ) -> MonitorResult:
     """The monitor on ``run``'s 1 ms rows, as the twin's ``monitor`` node steps it live: the
     monitor model with nominal parameters (by default the run's before any fault event) and
-    ``config`` (by default the model's calibrated one)."""
+    ``config`` (by default the model's calibrated one).
+
+    The monitor's ECU samples every row, as the twin's does at its 1 ms control period; a run
+    with another ECU (``simulate``'s default is continuous) is refused, since the monitor
+    would flag the difference of sampling as a residual."""
     from .algorithm import run_algorithm
+    if run.ecu_period is None or round(run.ecu_period * 1e9) != OUTPUT_PERIOD_NS:
+        raise TwinError('the monitor samples the actuator every 1 ms like the twin\'s ECU: '
+                        'simulate the run with ecu_period=1e-3, got '
+                        f'{"a continuous ECU" if run.ecu_period is None else run.ecu_period}')
     alg = MonitorAlgorithm.with_config(model, config)
     t_ns = np.arange(len(run['t']), dtype=np.int64) * OUTPUT_PERIOD_NS
     res = run_algorithm(alg, t_ns, run.signals, OUTPUT_PERIOD_NS * 1e-9, nominal or run.params)

@@ -217,9 +217,8 @@ def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_p
     mon = monitor_run(ref, 'SQ')
     on_grid = np.array(t_res) % 1_000_000 == 0
     np.testing.assert_array_equal(np.array(res)[on_grid], mon.residuals['xj'])
-    # running sums of squares (node) against cumulative sums (arrays): equal up to rounding
-    np.testing.assert_allclose(np.array(health)[on_grid], mon.indicators['p12'], rtol=1e-6,
-                               atol=1e-3)
+    # the node steps the compiled tick row by row, monitor_run a whole run: the same floats
+    np.testing.assert_array_equal(np.array(health)[on_grid], mon.indicators['p12'])
     from rosbags.highlevel import AnyReader
     with AnyReader([tmp_path / 'm']) as reader:
         conns = [c for c in reader.connections if c.topic == '/diagnostics']
