@@ -26,9 +26,18 @@ def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
         # a ROS executable asked to stop before it started has stopped cleanly (launch sends
         # SIGINT to every process when one ends: no 'process has died' for this one)
         return 0 if ros else 130
-    code = target()
     if not ros:
-        return code
+        return target()
+    try:
+        code = target()
+    except RuntimeError as exc:
+        # rcl's refusal of the command line (a -p value YAML cannot parse, a params file it
+        # cannot read), wherever the executable hands it over: one line, exit 2
+        if type(exc).__module__ != 'rclpy._rclpy_pybind11':
+            raise
+        print(f'{os.path.basename(sys.argv[0])}: error: '
+              f'{" ".join(str(exc).split(", at ")[0].split())}', file=sys.stderr)
+        code = 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)
     _leave(int(code or 0))

@@ -130,6 +130,14 @@ class BagWriter:
         if self.dir.is_symlink() or (self.dir.exists() and not self.dir.is_dir()):
             raise BagError(f'bag directory {str(self.dir)!r} is not a directory (or is a '
                            'symbolic link): refusing to write there')
+        if self.dir.parent.is_symlink():
+            # lnk/b would land wherever lnk points (a link planted in a shared directory)
+            raise BagError(f'bag directory {str(self.dir)!r}: {str(self.dir.parent)!r} is a '
+                           'symbolic link; give the directory it points to')
+        here = Path.cwd().resolve()
+        if self.dir.resolve() in (here, *here.parents) or self.dir.name in ('', '.', '..'):
+            raise BagError(f'bag directory {str(self.dir)!r} is the working directory or one '
+                           'of its parents: give the bag a directory of its own')
         self._created_dir = not self.dir.exists()
         if not self._created_dir and any(self.dir.iterdir()):
             if not overwrite:
@@ -138,6 +146,10 @@ class BagWriter:
             # only the files the bag owns: metadata.yaml and <dir>_<n>.mcap; nothing else in
             # the directory is touched, and a symbolic link is never followed
             owned = bag_files(self.dir)
+            if not owned:
+                raise BagError(f'bag directory {str(self.dir)!r} holds files but no bag; '
+                               '--overwrite replaces a bag, never other files: give another '
+                               'directory')
             links = [f.name for f in owned if f.is_symlink()]
             if links:
                 raise BagError(f'bag directory {str(self.dir)!r}: {links[0]} is a symbolic '

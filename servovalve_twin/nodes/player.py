@@ -33,7 +33,7 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy._rclpy_pybind11 import RCLError
@@ -388,6 +388,22 @@ def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None 
                 bag_duration_s=bag.duration_ns * 1e-9, warnings=player.warnings)
 
 
+def _typed(name: str, value: Any, default: Any) -> Any:
+    """A ``-p`` value as the option's type (that of its default), or one error line: rcl
+    hands over whatever YAML made of the text (``-p rate:=fast`` is the string 'fast')."""
+    if isinstance(default, tuple):
+        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+            return tuple(value)
+        raise TwinError(f'{name} = {value!r}: expected a list of strings, e.g. "[\'/xj\']"')
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+        raise TwinError(f'{name} = {value!r}: expected true or false')
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return type(default)(value)
+    raise TwinError(f'{name} = {value!r}: expected a number')
+
+
 def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin player --ros-args -p bag:=DIR [-p rate:=2.0] [-p clock:=40.0]
     [-p topics:="['/xj']"] [-p loop:=true] ...``."""
@@ -410,11 +426,8 @@ def main(args: Sequence[str] | None = None) -> int:
         values = ros_parameters(context, 'player', ['bag'] + fields)
         if not values.get('bag'):
             raise TwinError('give the bag to play: --ros-args -p bag:=DIR')
-        opts = {}
-        for f in dataclasses.fields(PlayOptions):
-            if f.name in values:
-                v = values[f.name]
-                opts[f.name] = tuple(v) if isinstance(f.default, tuple) else type(f.default)(v)
+        opts = {f.name: _typed(f.name, values[f.name], f.default)
+                for f in dataclasses.fields(PlayOptions) if f.name in values}
         result = play(values['bag'], PlayOptions(**opts), context=context,
                       stop=lambda: bool(stop), on_ready=lambda player: print(
                           f'player: playing {values["bag"]}', flush=True))

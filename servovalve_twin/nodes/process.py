@@ -13,6 +13,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from ..errors import ParameterError, TwinError
 
@@ -66,6 +67,8 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
     signal.signal(signal.SIGTERM, request_stop)
     signal.signal(signal.SIGINT, request_stop)
     try:
+        # parsed first on their own: rcl_init would log its own error line before refusing
+        remove_ros_args(argv)
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except rclpy._rclpy_pybind11.RCLError as exc:       # e.g. a params file that is missing
         print(f'error: {" ".join(str(exc).split(", at ")[0].split())}', file=sys.stderr)

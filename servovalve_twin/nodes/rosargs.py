@@ -28,6 +28,8 @@ def init_context(argv: Sequence[str] | None) -> tuple[Context, list[str]]:
     """A private rclpy context initialised with ``argv`` (default ``sys.argv``), without
     rclpy's signal handlers (the caller installs its own)."""
     argv = list(sys.argv if argv is None else argv)
+    # parsed first on their own: rcl_init would log its own error line before refusing them
+    remove_ros_args(argv)
     context = Context()
     rclpy.init(args=argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
     return context, argv

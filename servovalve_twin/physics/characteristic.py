@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
@@ -10,6 +11,12 @@ from ..errors import ModelError
 from .params import EhaParams
 from .valve_state import V_FAIL, V_P1, V_P2
 from .valves import get_valve_model
+
+
+#: a test bench's resolution is far coarser: the bounds keep a typo (1e9 points) from
+#: exhausting memory
+MAX_POINTS = 100_001
+MAX_CURVES = 100
 
 
 def characteristic(valve_model: str, params: EhaParams, psr: float, qj: Sequence[float],
@@ -23,8 +30,13 @@ def characteristic(valve_model: str, params: EhaParams, psr: float, qj: Sequence
     always the pseudo-static one.
     """
     model = get_valve_model(valve_model)
-    if n_points < 2:
-        raise ModelError(f'n_points must be >= 2, got {n_points}')
+    if not 2 <= n_points <= MAX_POINTS:
+        raise ModelError(f'the number of XS points must be in [2, {MAX_POINTS}], got {n_points}')
+    if not 1 <= len(qj) <= MAX_CURVES:
+        raise ModelError(f'the number of QJ curves must be in [1, {MAX_CURVES}], got {len(qj)}')
+    bad = [q for q in [psr, *qj] if not math.isfinite(q)]
+    if bad:
+        raise ModelError(f'PSR and QJ must be finite numbers, got {bad[0]!r}')
     p = params.replace(compressible=False)
     P = model.kernel(p)
     xs_grid = np.linspace(-p.XSM, p.XSM, n_points)

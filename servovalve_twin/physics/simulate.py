@@ -50,10 +50,19 @@ def effective_params(scenario: Scenario, overrides: Mapping[str, Any] | None = N
     return p
 
 
+#: the longest ECU or control period [s]: 10 Hz, far below any flight-control loop; beyond it
+#: the loop barely samples (an ECU every 1e9 s never sampled after t = 0: a run without control)
+MAX_PERIOD = 0.1
+
+
 def steps_per(period_s: float, params: EhaParams, what: str) -> int:
-    """How many DT steps make ``period_s``; it must be a whole number of them."""
+    """How many DT steps make ``period_s``; it must be a whole number of them, at most
+    :data:`MAX_PERIOD`."""
     if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
         raise ParameterError(f'{what} must be a positive number of seconds, got {period_s!r}')
+    if period_s > MAX_PERIOD:
+        raise ParameterError(f'{what} = {period_s:g} s is longer than {MAX_PERIOD:g} s (a loop '
+                             f'sampled below {1 / MAX_PERIOD:g} Hz does not control the actuator)')
     period_ns = int(round(period_s * 1e9))
     if period_ns < params.dt_ns:
         raise ParameterError(f'{what} = {period_s} s is shorter than DT = {params.DT} s')

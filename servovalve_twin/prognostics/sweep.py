@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import multiprocessing
 import os
 import zipfile
@@ -135,6 +136,11 @@ def measured(signals: Mapping[str, np.ndarray], noise: Mapping[str, float],
     return out
 
 
+#: the most runs one sweep may ask for (~30 min at the 2-worker rate of bench_sweep): a typo
+#: such as --draws 1000000000 is refused before it fills the memory with cases
+MAX_RUNS = 100_000
+
+
 def make_cases(*, plant_model: str = 'HD', monitor_model: str = DEFAULT_MONITOR_MODEL,
                scenario: Any = 'paper', faults: Mapping[str, Sequence[float]] | None = None,
                nominal_runs: int = 1, repeats: int = 1, draws: int = 0,
@@ -161,6 +167,14 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = DEFAULT_MONITOR_
     if algorithm is not None:
         from .algorithm import load_algorithm
         load_algorithm(algorithm, algorithm_params)          # a bad class path fails now
+    n_runs = (nominal_runs + repeats * sum(len(s) for s in (faults or {}).values())
+              + draws * len(ranges or {}))
+    if not 1 <= n_runs <= MAX_RUNS:
+        raise TwinError(f'a sweep runs 1 to {MAX_RUNS} runs, these options ask for {n_runs} '
+                        '(fault severities x repeats + ranges x draws + nominal runs)')
+    for name, (lo, hi) in (ranges or {}).items():
+        FAULTS[name].value(nominal, lo)                 # both ends in the catalog's bounds
+        FAULTS[name].value(nominal, hi)
     rng = np.random.default_rng(seed)
     cases: list[Case] = []
 
@@ -379,12 +393,15 @@ def parse_fault_specs(items: list[str]) -> tuple[dict[str, list[float]], dict[st
                 lo, hi = (float(v) for v in spec.split('~'))
                 if not lo < hi:
                     raise TwinError(f'--fault {item}: the range LO~HI needs LO < HI')
+                values = [lo, hi]
                 ranges[name] = (lo, hi)
             else:
-                grid[name] = [float(v) for v in spec.split(',') if v.strip()]
+                values = grid[name] = [float(v) for v in spec.split(',') if v.strip()]
+            if not values or not all(math.isfinite(v) for v in values):
+                raise ValueError
         except ValueError:
             raise TwinError(f'--fault expects NAME:S1,S2,... (grid) or NAME:LO~HI (with '
-                            f'--draws), got {item!r}') from None
+                            f'--draws) of finite severities, got {item!r}') from None
     return grid, ranges
 
 

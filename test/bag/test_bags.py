@@ -16,10 +16,10 @@ from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.cli import main
 from servovalve_twin.errors import BagError
 from servovalve_twin.twin import run_twin
+from cases import short
 from conftest import ROOT
 
-SHORT = {'duration': 0.3, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.1, 5000.0]],
-         'psr': [[0.0, 2.0e7], [0.2, 1.5e7]]}
+SHORT = short(0.3, load_at=0.1, drop_at=0.2)
 
 
 @pytest.fixture(scope='module')

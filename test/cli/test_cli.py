@@ -32,35 +32,6 @@ def test_simulate_hd_adds_port_pressures_and_params_apply(tmp_path):
     np.testing.assert_array_equal(data['xj'], ref['xj'])
 
 
-@pytest.mark.parametrize('args,fragment', [
-    (['simulate', '--valve-model', 'C9', '--out', 'x.csv'], "unknown valve model 'C9'"),
-    (['simulate', '--valve-model', 'C2', '--param', 'M=-1', '--out', 'x.csv'], 'M = -1.0'),
-    (['simulate', '--valve-model', 'C2', '--param', 'Q=1', '--out', 'x.csv'],
-     "unknown parameter 'Q'"),
-    (['simulate', '--valve-model', 'C2', '--scenario', 'nope.yaml', '--out', 'x.csv'],
-     'cannot read scenario file'),
-    (['simulate', '--valve-model', 'C2', '--ecu-period', 'abc', '--out', 'x.csv'],
-     'expected a number'),
-    (['simulate', '--valve-model', 'C2'], 'required: --out'),
-    (['characteristic', '--valve-model', 'HD', '--qj', '1,x', '--out', 'x.csv'],
-     'comma-separated'),
-    # the OSError path: an output that cannot be written is one line, not a traceback
-    (['simulate', '--valve-model', 'C2', '--out', 'no_such_dir/x.csv'],
-     'No such file or directory: no_such_dir/x.csv'),
-    (['characteristic', '--valve-model', 'C2', '--qj', '0', '--out', 'no_such_dir/c.csv'],
-     'No such file or directory: no_such_dir/c.csv'),
-])
-def test_bad_input_exit_2_with_one_line(args, fragment, tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
-    with pytest.raises(SystemExit) as exc_info:
-        raise SystemExit(main(args))
-    assert exc_info.value.code == 2
-    err = capsys.readouterr().err
-    assert fragment in err and err.count('\n') == 1, err
-    assert 'Traceback' not in err
-    assert not (tmp_path / 'x.csv').exists()
-
-
 def test_characteristic(tmp_path):
     out, png = tmp_path / 'ch.csv', tmp_path / 'ch.png'
     assert main(['characteristic', '--valve-model', 'HD', '--qj', '0,8e-5', '--points', '41',

@@ -13,10 +13,11 @@ from servovalve_twin.cli import main
 from servovalve_twin.config import default_bag_dir, resolve_bag
 from servovalve_twin.errors import BagError, TwinError
 from servovalve_twin.twin import Twin, run_twin
+from cases import BAD_COMMANDS, BAD_EXECUTABLES, EXAMPLE, listing, make_files, short
 from conftest import ROOT
 
 REF = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
-SHORT = {'duration': 0.05, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.02, 5000.0]]}
+SHORT = short(0.05, load_at=0.02)
 
 
 def _snapshot(d):
@@ -153,67 +154,39 @@ def test_compare_warns_when_the_runs_differ_in_more_than_the_model(ros_context, 
     assert 'warning' not in capsys.readouterr().err
 
 
-ALIAS_BOMB = ('a: &a [x, x, x, x, x, x, x, x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\n'
-              'c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b]\nd: &d [*c, *c, *c, *c, *c, *c, *c]\n'
-              'com: [*d, *d, *d, *d, *d, *d, *d, *d, *d]\n')
-
-
-def _write(tmp_path, name, data):
-    f = tmp_path / name
-    f.write_bytes(data if isinstance(data, bytes) else data.encode())
-    return str(f)
-
-
-BAD = [
-    # (command line with {dir} for the test directory, a fragment of the one-line message)
-    (['simulate', '--valve-model', 'C2', '--scenario', 'latin1.yaml', '--out', 'x.csv'],
-     'is not UTF-8 text'),
-    (['simulate', '--valve-model', 'C2', '--scenario', 'windows_list.yaml', '--out', 'x.csv'],
-     'scenario.windows: expected a mapping'),
-    (['simulate', '--valve-model', 'C2', '--scenario', 'windows_number.yaml', '--out', 'x.csv'],
-     'scenario.windows: expected a mapping'),
-    (['simulate', '--valve-model', 'C2', '--scenario', 'bomb.yaml', '--out', 'x.csv'],
-     'YAML anchor'),
-    (['simulate', '--valve-model', 'C2', '--scenario', 'negative_psr.yaml', '--out', 'x.csv'],
-     'PSR = -2e+07 Pa is outside [0, 1e+08] Pa'),
-    (['simulate', '--valve-model', 'C2', '--scenario', 'huge_psr.yaml', '--out', 'x.csv'],
-     'PSR = 1e+300 Pa is outside'),
-    (['simulate', '--valve-model', 'C2', '--ecu-period', '1e-300', '--out', 'x.csv'],
-     'shorter than DT'),
-    (['run', '--valve-model', 'C2', '--control-period', '1e-300', '--no-bag'],
-     'shorter than DT'),
-    (['simulate', '--valve-model', 'C2', '--scenario', 'long.yaml', '--out', 'x.csv'],
-     'scenario.duration must be in (0, 3600] s'),
-    (['sweep', '--fault', 'leakage_growth:5~1', '--draws', '2', '--out', 's'], 'LO < HI'),
-    (['sweep', '--fault', 'leakage_growth:5', '--workers', '-1', '--out', 's'],
-     '--workers must be >= 1'),
-    (['sweep', '--fault', 'leakage_growth:5', '--nominal', '-1', '--out', 's'],
-     '--nominal must be >= 0'),
-    (['sweep', '--fault', 'leakage_growth:1~5', '--draws', '-1', '--out', 's'],
-     '--draws must be >= 0'),
-    (['sweep', '--fault', 'leakage_growth:5', '--repeats', '-1', '--out', 's'],
-     '--repeats must be >= 1'),
-    (['compare', '@nope', '@paper_HD'], "unknown reference bag '@nope'"),
-]
-
-
-@pytest.mark.parametrize('args, fragment', BAD, ids=[' '.join(a[:4]) for a, _ in BAD])
+@pytest.mark.parametrize('args, fragment', BAD_COMMANDS)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys, args, fragment):
+    """Every row of the bad-input table (test/cases.py)."""
     monkeypatch.chdir(tmp_path)
-    _write(tmp_path, 'latin1.yaml', 'name: caf\xe9\n'.encode('latin-1'))
-    _write(tmp_path, 'windows_list.yaml', 'windows: [[0.1, 0.2]]\n')
-    _write(tmp_path, 'windows_number.yaml', 'windows: 3\n')
-    _write(tmp_path, 'bomb.yaml', ALIAS_BOMB)
-    _write(tmp_path, 'negative_psr.yaml', 'psr: [[0.0, -2.0e+7]]\n')
-    _write(tmp_path, 'huge_psr.yaml', 'psr: [[0.0, 1.0e+300]]\n')
-    _write(tmp_path, 'long.yaml', 'duration: 1.0e+6\n')
-    before = sorted(p.name for p in tmp_path.iterdir())
-    assert main(args) == 2
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    make_files(tmp_path)
+    before = listing(tmp_path)
+    try:
+        rc = main(args)
+    except SystemExit as exc:             # argparse's own refusals
+        rc = exc.code
+    assert rc == 2
     err = capsys.readouterr().err
     print(err.strip())
     assert fragment in err and err.count('\n') == 1 and 'Traceback' not in err, err
     assert len(err) < 700
-    assert sorted(p.name for p in tmp_path.iterdir()) == before      # nothing left behind
+    assert listing(tmp_path) == before      # nothing left behind, nothing written elsewhere
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('executable, args, fragment', BAD_EXECUTABLES)
+def test_an_executables_bad_parameter_is_one_line_and_exit_2(tmp_path, executable, args,
+                                                              fragment):
+    """The ROS executables' rows of the bad-input table: rcl hands a ``-p`` value over as
+    whatever YAML makes of it (``rate:=fast`` a string, ``topics:=xj`` not a list)."""
+    import subprocess
+    from conftest import console_script
+    r = subprocess.run([console_script(executable), '--ros-args', *args], capture_output=True,
+                       text=True, timeout=120, cwd=tmp_path)
+    print(r.stderr.strip())
+    assert r.returncode == 2 and fragment in r.stderr and 'Traceback' not in r.stderr
+    assert r.stderr.strip().count('\n') == 0
+    assert not any(tmp_path.iterdir())
 
 
 def test_nodes_refuse_misspelt_parameters_and_accept_integers_for_doubles(tmp_path):
@@ -365,7 +338,7 @@ def test_run_with_a_monitor_prints_its_verdict(tmp_path, capsys, monkeypatch):
     assert main(['run', '--valve-model', 'HD', '--monitor', 'SQ', '--no-bag']) == 0
     out = capsys.readouterr().out
     assert 'EHA monitor: no WARN, no ERROR; peak health_xj 0.0003279' in out
-    _write(tmp_path, 'leak.yaml', 'faults: [{at: 0.1, fault: leakage_growth, severity: 10.0}]\n'
+    (tmp_path / 'leak.yaml').write_text('faults: [{at: 0.1, fault: leakage_growth, severity: 10.0}]\n'
            'com: [[0.0, 0.02], [0.3, 0.03], [0.75, 0.02]]\nfr: [[0.0, 0.0], [0.2, 10400.0]]\n')
     assert main(['run', '--valve-model', 'HD', '--monitor', 'SQ', '--no-bag', '--scenario',
                  'leak.yaml']) == 0

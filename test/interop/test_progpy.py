@@ -14,8 +14,8 @@ from progpy.state_estimators import ParticleFilter  # noqa: E402
 from progpy.uncertain_data import UnweightedSamples  # noqa: E402
 
 from servovalve_twin.progpy import EhaModel  # noqa: E402
+from cases import PAPER
 
-PAPER = load_scenario('paper').to_dict()
 
 
 def _inputs(m, r, i):

@@ -9,6 +9,7 @@ from servovalve_twin.errors import ModelError
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODEL_NAMES, VALVE_MODELS, get_valve_model
+from cases import short
 
 PAPER_NAMES = ('linear', 'saturated', 'saturated_downstream', 'linear_leakage', 'A', 'B', 'C1',
                'C2', 'C3', 'C4', 'HD')
@@ -87,8 +88,7 @@ def test_whole_paper_scenario_runs(model):
     print(model.name, 'XJ(1 s) =', r['xj'][-1], 'm', r.info)
 
 
-SHORT = {'duration': 0.06, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.03, 8000.0]],
-         'psr': [[0.0, 2.0e7], [0.045, 1.2e7]]}
+SHORT = short(0.06, load=8000.0, psr_after=1.2e7)
 
 
 def test_stateful_plant_equals_simulate(model):

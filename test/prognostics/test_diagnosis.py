@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from servovalve_twin.cli import main
-from servovalve_twin.config import load_scenario
 from servovalve_twin.errors import TwinError
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
@@ -15,8 +14,8 @@ from servovalve_twin.prognostics import calibration
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, UNEXPLAINED, diagnose
 from servovalve_twin.prognostics.prognosis import prognose
 from servovalve_twin.runs import simulate
+from cases import PAPER
 
-PAPER = load_scenario('paper').to_dict()
 
 
 def _faulty(fault, severity):

@@ -161,24 +161,6 @@ def test_bit_command_writes_a_scenario_and_the_limits(tmp_path, capsys):
     assert 'exists' in capsys.readouterr().err
 
 
-@pytest.mark.parametrize('args,fragment', [
-    (['bit', '--out', 'b.yaml', '--duration', '0.2'], 'BIT duration 0.2 s'),
-    (['bit', '--out', 'b.yaml', '--max-load', '1e6'], 'BIT load'),
-    (['bit', '--out', 'b.yaml', '--max-rate', '0.001'], 'BIT max rate'),
-    (['bit', '--out', 'b.txt'], 'expected a new .yaml file'),
-    (['diagnose', '--limits', 'nope'], 'unknown scenario'),
-    (['diagnose', '--json', 'x.json'], 'diagnose needs BAG'),
-    (['diagnose', '@paper_HD', '--limits', 'paper'], 'not both'),
-    (['diagnose', '--limits', 'paper', '--faults', 'wear'], "unknown fault 'wear'"),
-])
-def test_bad_input_is_one_line_exit_2(args, fragment, tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
-    assert main(args) == 2
-    err = capsys.readouterr().err
-    assert fragment in err and err.count('\n') == 1, err
-    assert not (tmp_path / 'b.yaml').exists()
-
-
 def test_diagnose_limits_prints_each_fault(tmp_path, capsys):
     assert main(['diagnose', '--limits', 'paper', '--json', str(tmp_path / 'l.json')]) == 0
     text = capsys.readouterr().out

@@ -15,8 +15,8 @@ from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.config import load_scenario
 from servovalve_twin.runs import simulate
 from servovalve_twin.prognostics.sweep import make_cases, run_case, run_cases, write_dataset
+from cases import PAPER
 
-PAPER = load_scenario('paper').to_dict()
 
 
 def faulted(fault, severity, at=0.0, model='HD'):

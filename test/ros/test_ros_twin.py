@@ -11,9 +11,8 @@ from rclpy.parameter import Parameter
 from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODEL_NAMES
 from servovalve_twin.twin import Twin, run_twin
+from cases import SHORT
 
-SHORT = {'duration': 0.2, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.1, 5000.0]],
-         'psr': [[0.0, 2.0e7], [0.15, 1.5e7]]}
 
 
 def test_topics_and_types(ros_context):
