@@ -17,7 +17,8 @@ from servovalve_twin.config import builtin_scenarios, load_scenario
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import NOISE, VARY
-from servovalve_twin.prognostics.monitor import ERROR, WARN, chirp, monitor_run, random_steps
+from servovalve_twin.prognostics.monitor import ERROR, WARN, monitor_run
+from servovalve_twin.prognostics.thresholds import chirp, random_steps
 from servovalve_twin.prognostics.sweep import draw_nuisance, measured
 from servovalve_twin.runs import simulate
 

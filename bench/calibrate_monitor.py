@@ -12,9 +12,9 @@ import sys
 import time
 
 from servovalve_twin.physics.valves import MONITOR_MODEL_NAMES
-from servovalve_twin.prognostics.monitor import (FALSE_ALARM_RATE, MONITOR_CALIBRATION_FILE,
-                                                 calibrate_thresholds, healthy_peaks,
-                                                 monitor_cal_flights)
+from servovalve_twin.prognostics.monitor import MONITOR_CALIBRATION_FILE
+from servovalve_twin.prognostics.thresholds import (FALSE_ALARM_RATE, calibrate_thresholds,
+                                                    healthy_peaks, monitor_cal_flights)
 
 SPREAD = 1.5
 

@@ -166,8 +166,9 @@ class MonitorThresholds(Command):
     def main(self, args):
         import yaml
         from ..physics.valves import get_monitor_model
-        from ..prognostics.monitor import (DEFAULT_MONITOR_MODEL, calibrate_thresholds,
-                                           healthy_peaks, monitor_cal_flights)
+        from ..prognostics.monitor import DEFAULT_MONITOR_MODEL
+        from ..prognostics.thresholds import (calibrate_thresholds, healthy_peaks,
+                                              monitor_cal_flights)
         model = args.monitor_model or DEFAULT_MONITOR_MODEL
         get_monitor_model(model)
         for name, value in (('--units', args.units), ('--far-error', args.far_error),

@@ -7,16 +7,11 @@ Health: the residuals of XJ, DXJ and P12 are smoothed as moving RMS values over 
 (1 ms samples); each is compared with a warning and an error threshold; the health level is the
 worst of the three (0 OK, 1 WARN, 2 ERROR), as in ``diagnostic_msgs/DiagnosticStatus``.
 
-Thresholds are set for a stated false-alarm rate, not by hand (:func:`calibrate_thresholds`):
-healthy HD actuators, their nuisance (M, CJ, FDJ) drawn within 1.5 x the documented spread and
-measured with the documented sensor noise, fly a set of flights (:func:`monitor_cal_flights`:
-every built-in scenario, chirps, seeded random steps under load); each run's peak indicator
-per residual is collected, a Gumbel law (the law of maxima) is fitted to them by moments, and
-each threshold is its quantile at the per-flight false-alarm rate shared among the three
-residuals (:data:`FALSE_ALARM_RATE`: 1e-3 per flight for ERROR, 1e-2 for WARN). The packaged
-thresholds (``data/monitor_calibration.json``, rebuilt by ``bench/calibrate_monitor.py``) are
-every monitor model's defaults; ``servovalve-twin monitor-thresholds`` computes them for your
-own flights.
+Thresholds are set for a stated false-alarm rate (1e-3 per flight for ERROR, 1e-2 for WARN),
+not by hand: from healthy HD units' peak indicators over a set of flights (:mod:`.thresholds`).
+The packaged thresholds (``data/monitor_calibration.json``, rebuilt by
+``bench/calibrate_monitor.py``) are every monitor model's defaults; ``servovalve-twin
+monitor-thresholds`` computes them for your own flights.
 
 Every host steps the same compiled tick (:mod:`.monitor_loop`): the ROS monitor node one
 row per control period, ``evaluate``, sweeps and :func:`monitor_run` a whole run's rows in one
@@ -29,13 +24,13 @@ import dataclasses
 import functools
 import math
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 
 from ..errors import ModelError, TwinError
 from ..physics.params import EhaParams
-from ..physics.simulate import OUTPUT_PERIOD_NS, RunResult, effective_params, simulate
+from ..physics.simulate import OUTPUT_PERIOD_NS, RunResult
 from ..physics.signals import MEASURED, SIGNALS
 from ..physics.valves import get_monitor_model
 from .algorithm import Algorithm, Health
@@ -51,8 +46,6 @@ LEVEL_NAMES = {OK: 'OK', WARN: 'WARN', ERROR: 'ERROR'}
 #: closest, so that thresholds safe on every flight still see a 3 x leakage on the paper's
 #: (C2's mismatch against HD, ten times SQ's, hides it: doc/results/monitor.md)
 DEFAULT_MONITOR_MODEL = 'SQ'
-#: per-flight false-alarm rates the thresholds are set for (shared among the residuals)
-FALSE_ALARM_RATE = {'warn': 1e-2, 'error': 1e-3}
 MONITOR_CALIBRATION_FILE = (Path(__file__).resolve().parents[1] / 'data'
                             / 'monitor_calibration.json')
 
@@ -146,93 +139,6 @@ def monitor_run(run: RunResult, model: str = DEFAULT_MONITOR_MODEL,
     t_ns = np.arange(len(run['t']), dtype=np.int64) * OUTPUT_PERIOD_NS
     res = run_algorithm(alg, t_ns, run.signals, OUTPUT_PERIOD_NS * 1e-9, nominal or run.params)
     return MonitorResult.of(res, alg.config)
-
-
-def chirp(f0: float, f1: float, amplitude: float, duration: float, load: float
-          ) -> dict[str, Any]:
-    """A linear chirp f0 -> f1 [Hz] of Com as a ramp profile sampled every 2 ms."""
-    t = np.arange(0.0, duration + 1e-9, 2e-3)
-    phase = 2 * math.pi * (f0 * t + (f1 - f0) * t * t / (2 * duration))
-    return dict(name=f'chirp_{f0:g}_{f1:g}', duration=duration,
-                com={'ramp': [[round(float(a), 6), float(amplitude * math.sin(b))]
-                              for a, b in zip(t, phase)]},
-                fr=[[0.0, 0.0], [0.01, load]])
-
-
-def random_steps(seed: int, duration: float = 2.0, stroke: float = 0.04,
-                 load: float = 6000.0, n: int = 8) -> dict[str, Any]:
-    """Seeded random steps of Com and FR (uniform levels and instants)."""
-    rng = np.random.default_rng(seed)
-    tc = np.sort(rng.uniform(0.02, duration - 0.1, n))
-    tf = np.sort(rng.uniform(0.0, duration - 0.1, n // 2))
-    return dict(name=f'steps_{seed}', duration=duration,
-                com=[[0.0, 0.0]] + [[round(float(t), 3), float(rng.uniform(-stroke, stroke))]
-                                    for t in tc],
-                fr=[[0.0, 0.0]] + [[round(float(t), 3), float(rng.uniform(-load, load))]
-                                   for t in tf])
-
-
-def monitor_cal_flights() -> dict[str, Any]:
-    """The calibration flights: every built-in scenario, two chirps, three random steps."""
-    from ..config import builtin_scenarios
-    flights: dict[str, Any] = {n: n for n in builtin_scenarios()}
-    for f0, f1, amp, load in ((0.5, 10.0, 0.02, 0.0), (1.0, 20.0, 0.01, 5000.0)):
-        c = chirp(f0, f1, amp, 2.0, load)
-        flights[c['name']] = c
-    for seed in (1, 2, 3):
-        flights[f'steps_{seed}'] = random_steps(seed)
-    return flights
-
-
-def healthy_peaks(models: Sequence[str], flights: Mapping[str, Any], units: int, seed: int,
-                  *, spread: float = 1.5, window: float = 0.05
-                  ) -> dict[str, dict[str, list[float]]]:
-    """Per monitor model and residual, the peak indicator of each healthy HD unit's run
-    (``units`` per flight, nuisance within ``spread`` x the documented spread, documented
-    noise), the monitor stepped as it runs live; each HD run serves every model."""
-    from ..config import load_scenario
-    from ..physics.params import DEFAULTS
-    from .calibration import NOISE, VARY
-    from .sweep import draw_nuisance, measured
-    rng = np.random.default_rng(seed)
-    peaks = {m: {s: [] for s in RESIDUALS} for m in models}
-    # thresholds play no part in the peaks: the hand-set ones serve a model not yet calibrated
-    config = HealthConfig(window=window)
-    for name in flights:
-        scn = load_scenario(flights[name])
-        design = effective_params(scn)
-        for _ in range(units):
-            unit = DEFAULTS.replace(**draw_nuisance(
-                rng, {k: v * spread for k, v in VARY.items()}, DEFAULTS))
-            run = simulate('HD', scn, params=effective_params(scn, None, unit),
-                           ecu_period=1e-3)
-            noisy = dataclasses.replace(run, signals=measured(run.signals, NOISE, rng))
-            for m in models:
-                mon = monitor_run(noisy, m, config, nominal=design)
-                for s in RESIDUALS:
-                    peaks[m][s].append(float(mon.indicators[s].max()))
-    return peaks
-
-
-def gumbel_quantile(samples: Sequence[float], exceedance: float) -> float:
-    """The value a maximum exceeds with probability ``exceedance``, from a Gumbel law fitted
-    to ``samples`` by moments (scale sd*sqrt(6)/pi, location mean - 0.5772*scale)."""
-    x = np.asarray(samples, dtype=float)
-    beta = float(np.std(x, ddof=1)) * math.sqrt(6.0) / math.pi
-    mu = float(np.mean(x)) - 0.5772156649 * beta
-    return mu - beta * math.log(-math.log1p(-exceedance))
-
-
-def calibrate_thresholds(peaks: Mapping[str, Sequence[float]], *, window: float = 0.05,
-                         rates: Mapping[str, float] = FALSE_ALARM_RATE) -> dict[str, float]:
-    """Thresholds for the per-flight false-alarm ``rates`` from healthy peak indicators (one
-    list per residual): each residual gets a third of the rate."""
-    out: dict[str, float] = {'window': window}
-    for s in RESIDUALS:
-        for level in ('warn', 'error'):
-            q = gumbel_quantile(peaks[s], rates[level] / len(RESIDUALS))
-            out[f'{level}_{s}'] = float(max(q, max(peaks[s])))
-    return out
 
 
 @functools.lru_cache(maxsize=None)

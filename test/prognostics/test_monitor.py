@@ -57,7 +57,7 @@ def test_a_plausible_run_drops_nothing(clean):
 def test_gumbel_quantile_against_the_closed_form():
     """Samples of a known Gumbel law: the fitted quantile is the law's own,
     mu - beta*ln(-ln(1 - p))."""
-    from servovalve_twin.prognostics.monitor import gumbel_quantile
+    from servovalve_twin.prognostics.thresholds import gumbel_quantile
     rng = np.random.default_rng(5)
     mu, beta = 2.0, 0.5
     x = rng.gumbel(mu, beta, 200_000)
@@ -70,7 +70,8 @@ def test_thresholds_hold_their_false_alarm_rate_on_gumbel_peaks():
     """Peaks of a known Gumbel law: a fresh peak exceeds one residual's ERROR threshold with a
     third of the per-flight rate (the law's own exceedance, 1 - exp(-exp(-(x - mu)/beta)));
     and no threshold lies below a healthy peak it was calibrated on."""
-    from servovalve_twin.prognostics.monitor import RESIDUALS, calibrate_thresholds
+    from servovalve_twin.prognostics.monitor import RESIDUALS
+    from servovalve_twin.prognostics.thresholds import calibrate_thresholds
     rng = np.random.default_rng(6)
     mu, beta = 1.0, 0.1
     peaks = {s: rng.gumbel(mu, beta, 200_000) for s in RESIDUALS}
@@ -90,9 +91,9 @@ def test_the_packaged_thresholds_are_those_the_calibration_gives():
     changed without recalibrating fails here."""
     import json
     from servovalve_twin.physics.valves import MONITOR_MODEL_NAMES
-    from servovalve_twin.prognostics.monitor import (MONITOR_CALIBRATION_FILE,
-                                                     calibrate_thresholds, healthy_peaks,
-                                                     monitor_cal_flights)
+    from servovalve_twin.prognostics.monitor import MONITOR_CALIBRATION_FILE
+    from servovalve_twin.prognostics.thresholds import (calibrate_thresholds, healthy_peaks,
+                                                        monitor_cal_flights)
     packaged = json.loads(MONITOR_CALIBRATION_FILE.read_text())
     about = packaged['about']
     flights = monitor_cal_flights()
@@ -112,8 +113,8 @@ def test_no_false_alarm_on_unseen_flights_and_a_3x_leak_is_seen():
     default monitor stays below ERROR; a 3 x leakage on the paper's flight reaches it."""
     from servovalve_twin.config import load_scenario
     from servovalve_twin.prognostics.calibration import NOISE, VARY
-    from servovalve_twin.prognostics.monitor import (ERROR, chirp, monitor_run,
-                                                     random_steps)
+    from servovalve_twin.prognostics.monitor import ERROR, monitor_run
+    from servovalve_twin.prognostics.thresholds import chirp, random_steps
     from servovalve_twin.prognostics.sweep import draw_nuisance, measured
     rng = np.random.default_rng(77)
     noise = {k: 2 * v for k, v in NOISE.items()}
