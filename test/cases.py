@@ -128,6 +128,8 @@ BAD_COMMANDS = [
     _row(['sweep', '--nominal', '0', '--out', 's'], 'these options ask for 0'),
     _row(['sweep', '--fault', 'leakage_growth:1~5000', '--draws', '2', '--out', 's'],
          'severity 5000.0 x CLk is out of range'),
+    _row(['sweep', '--fault', 'leakage_growth:5', '--nominal', '0', '--out', 'notabag'],
+         'exists and is not an empty directory'),
     _row(['sweep', '--fault', 'leakage_growth:5', '--workers', '-1', '--out', 's'],
          '--workers must be >= 1'),
     _row(['sweep', '--fault', 'leakage_growth:5', '--nominal', '-1', '--out', 's'],

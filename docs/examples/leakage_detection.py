@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from servovalve_twin.prognostics.monitor import HealthConfig
-from servovalve_twin.prognostics.sweep import make_cases, run_cases, write_dataset
+from servovalve_twin.prognostics.dataset import write_dataset
+from servovalve_twin.prognostics.sweep import make_cases, run_cases
 
 SEVERITIES = [2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0]
 VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}

@@ -3,6 +3,7 @@ dataset for prognostics."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from ..errors import TwinError
@@ -52,8 +53,8 @@ class Sweep(Command):
     def main(self, args):
         import time
         from ..prognostics.monitor import DEFAULT_MONITOR_MODEL
-        from ..prognostics.sweep import (iter_results, make_cases, parse_fault_specs,
-                                         parse_vary, write_dataset)
+        from ..prognostics.dataset import SweepStopped, write_dataset
+        from ..prognostics.sweep import iter_results, make_cases, parse_fault_specs, parse_vary
         grid, ranges = parse_fault_specs(args.fault)
         if ranges and not args.draws:
             raise TwinError('a fault range NAME:LO~HI needs --draws N')
@@ -73,8 +74,13 @@ class Sweep(Command):
                            algorithm_params=algorithm_params(args))
         t0 = time.perf_counter()
         # streamed: each run's row (and traces) goes to the dataset as it arrives
-        summary = write_dataset(Path(args.out), iter_results(
-            cases, workers=args.workers, scheduler=args.scheduler, traces=args.traces))
+        try:
+            summary = write_dataset(Path(args.out), iter_results(
+                cases, workers=args.workers, scheduler=args.scheduler, traces=args.traces),
+                total=len(cases))
+        except SweepStopped as exc:
+            print(f'servovalve-twin sweep: {exc}', file=sys.stderr)
+            return exc.code
         wall = time.perf_counter() - t0
         files = 'dataset.csv, dataset.parquet, ' + ('traces.npz, ' if args.traces else '')
         print(f'{len(cases)} runs in {wall:.1f} s ({len(cases) / wall:.1f} runs/s) -> '

@@ -9,22 +9,19 @@ cluster (``scheduler='tcp://host:8786'``); the physics is the same ``simulate`` 
 
 Speed (bench/bench_sweep.py): the parent loads the compiled physics once before the pool
 forks, so no worker compiles; runs travel back as rows (~2 kB) unless traces are asked for
-(~90 kB each); and :func:`write_dataset` streams the traces to ``traces.npz`` as they arrive,
-so the parent never holds them all.
+(~90 kB each); and :func:`.dataset.write_dataset` streams rows and traces to the dataset as
+they arrive, so the parent never holds the traces and a stopped sweep keeps its finished runs.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import json
 import math
 import multiprocessing
 import os
-import zipfile
-from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, Sequence
+import signal
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -207,15 +204,18 @@ def make_cases(*, plant_model: str = 'HD', monitor_model: str = DEFAULT_MONITOR_
 def run_cases(cases: Sequence[Case], *, workers: int | None = None,
               scheduler: str | None = None, traces: bool = True) -> list[dict[str, Any]]:
     """Every case's result, in case order (:func:`iter_results` collected)."""
-    return list(iter_results(cases, workers=workers, scheduler=scheduler, traces=traces))
+    return sorted(iter_results(cases, workers=workers, scheduler=scheduler, traces=traces),
+                  key=lambda r: r['row']['run_id'])
 
 
 def iter_results(cases: Sequence[Case], *, workers: int | None = None,
                  scheduler: str | None = None, traces: bool = True
                  ) -> Iterator[dict[str, Any]]:
-    """Run every case and yield the results in case order as they come: on a Dask cluster
-    when ``scheduler`` is its address, else on a local process pool of ``workers`` (default:
-    the number of cores). ``traces`` = False returns rows only (what a dataset needs)."""
+    """Run every case and yield the results as the runs finish (each row carries its
+    ``run_id``): on a Dask cluster when ``scheduler`` is its address, else on a local process
+    pool of ``workers`` (default: the number of cores). ``traces`` = False returns rows only
+    (what a dataset needs). Closing the stream early (Ctrl-C in the consumer) cancels the runs
+    not started; the pool's workers ignore SIGINT, so that the parent alone decides."""
     cases = list(cases)
     if scheduler:
         try:
@@ -245,10 +245,34 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
     rest = cases[1:]
     ctx = multiprocessing.get_context('fork') if 'fork' in \
         multiprocessing.get_all_start_methods() else None
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        yield from progress(pool.map(run_case, rest, [traces] * len(rest),
-                                     chunksize=max(1, len(rest) // (8 * workers))),
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                               initializer=signal.signal,
+                               initargs=(signal.SIGINT, signal.SIG_IGN))
+    try:
+        yield from progress(_as_finished(pool, rest, traces, 4 * workers),
                             total=len(cases), initial=1, desc='sweep', unit='run')
+    finally:
+        # an early end (Ctrl-C, a lost worker): the runs not started are dropped and only
+        # those running are waited for -- one run each, not the whole queue
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _as_finished(pool: ProcessPoolExecutor, cases: Sequence[Case], traces: bool,
+                 in_flight: int) -> Iterator[dict[str, Any]]:
+    """The results of ``cases`` on ``pool`` as they finish, with at most ``in_flight``
+    submitted at a time (a sweep of 10^5 runs never holds 10^5 futures)."""
+    todo = iter(cases)
+    pending: set = set()
+    while True:
+        for case in todo:
+            pending.add(pool.submit(run_case, case, traces))
+            if len(pending) >= in_flight:
+                break
+        if not pending:
+            return
+        done, pending = wait(pending, return_when=FIRST_COMPLETED)
+        for f in done:
+            yield f.result()
 
 
 #: how long a Dask cluster may have no worker at all before a sweep gives up on it [s]
@@ -273,110 +297,6 @@ def _dask_result(client, future, scheduler: str) -> dict[str, Any]:
                 raise TwinError(f'the Dask cluster at {scheduler} has had no worker for '
                                 f'{NO_WORKER_S:g} s: start workers, or sweep locally '
                                 '(without --scheduler)') from None
-
-
-def write_dataset(out: Path, results: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
-    """``dataset.csv`` and ``dataset.parquet`` (one row per run), ``traces.npz`` (per-run arrays,
-    keys ``run<id>_<name>``; only when the results carry traces), ``summary.json`` (detection
-    statistics per fault and severity) and ``signature.png`` (peak indicators against
-    severity, per fault). ``results`` may be a stream (:func:`iter_results`): each run's traces
-    are written to ``traces.npz`` as it arrives and dropped, only the rows are kept."""
-    out.mkdir(parents=True, exist_ok=True)
-    rows: list[dict[str, Any]] = []
-    npz = None
-    try:
-        for r in results:
-            rows.append(dict(r['row']))
-            if r.get('traces'):
-                if npz is None:
-                    npz = zipfile.ZipFile(out / 'traces.npz', 'w', zipfile.ZIP_DEFLATED)
-                for k, v in r['traces'].items():
-                    # the .npy members np.savez_compressed writes, one at a time
-                    with npz.open(f'run{r["row"]["run_id"]}_{k}.npy', 'w',
-                                  force_zip64=True) as fh:
-                        np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
-    finally:
-        if npz is not None:
-            npz.close()
-    cols: list[str] = []
-    for r in rows:
-        cols += [k for k in r if k not in cols]
-    with open(out / 'dataset.csv', 'w', newline='', encoding='utf-8') as fh:
-        w = csv.DictWriter(fh, fieldnames=cols)
-        w.writeheader()
-        for r in rows:
-            w.writerow(r)
-    # the same table as Parquet (typed columns, quick to load into pandas or polars)
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    pq.write_table(pa.table({c: [r.get(c) for r in rows] for c in cols}),
-                   str(out / 'dataset.parquet'))
-    summary = summarize(rows)
-    (out / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n', encoding='utf-8')
-    plot_signature(rows, out / 'signature.png')
-    return summary
-
-
-def summarize(rows: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
-    rows = list(rows)
-    nominal = [r for r in rows if not r['faulty']]
-    out: dict[str, Any] = dict(
-        runs=len(rows), nominal_runs=len(nominal),
-        false_alarms=sum(r['alarm'] for r in nominal),
-        false_alarm_rate=(sum(r['alarm'] for r in nominal) / len(nominal)) if nominal else None,
-        faults={})
-    by: dict[tuple[str, float], list] = {}
-    for r in rows:
-        if r['faulty']:
-            by.setdefault((r['fault'], round(r['severity'], 9)), []).append(r)
-    for (fault, sev), rs in sorted(by.items()):
-        delays = [r['detection_delay'] for r in rs if r['alarm'] and not
-                  np.isnan(r['detection_delay'])]
-        out['faults'].setdefault(fault, []).append(dict(
-            severity=sev, runs=len(rs), detection_rate=len(delays) / len(rs),
-            alarms_before_onset=sum(r['alarm_before_onset'] for r in rs),
-            mean_delay=float(np.mean(delays)) if delays else None,
-            max_delay=float(np.max(delays)) if delays else None))
-    return out
-
-
-def plot_signature(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
-    """Fault signatures: each fault's peak residual indicators (XJ, DXJ, P12) against severity,
-    nominal runs as the grey band -- which residual a fault moves, and how early."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    faults = sorted({r['fault'] for r in rows if r['faulty']})
-    feats = (('peak_rms_xj', 'XJ [mm]', 1e3), ('peak_rms_dxj', 'DXJ [mm/s]', 1e3),
-             ('peak_rms_p12', 'P12 [MPa]', 1e-6))
-    if rows and 'peak_rms_xj' not in rows[0]:           # a user's algorithm: its outputs
-        feats = tuple((k, k[len('peak_'):], 1.0) for k in rows[0] if k.startswith('peak_'))
-    fig, axes = plt.subplots(len(feats), max(1, len(faults)),
-                             figsize=(3.0 * max(1, len(faults)), 7.0), squeeze=False)
-    nominal = [r for r in rows if not r['faulty']]
-    for j, fault in enumerate(faults):
-        rs = [r for r in rows if r['fault'] == fault]
-        for i, (key, label, k) in enumerate(feats):
-            ax = axes[i][j]
-            if nominal:
-                vals = [r[key] * k for r in nominal]
-                ax.axhspan(min(vals), max(vals), color='0.85', label='nominal runs')
-            ax.scatter([r['severity'] for r in rs], [r[key] * k for r in rs], s=12,
-                       c=['C3' if r['alarm'] else 'C0' for r in rs])
-            if i == 0:
-                ax.set_title(fault, fontsize=8)
-            if j == 0:
-                ax.set_ylabel(f'peak {label}' if 'peak_rms_xj' not in rows[0] else
-                              f'peak moving RMS\nresidual {label}', fontsize=8)
-            if i == len(feats) - 1:
-                ax.set_xlabel('severity', fontsize=8)
-            ax.tick_params(labelsize=7)
-            ax.grid(True, lw=0.3)
-    fig.suptitle('Fault signatures (red: alarm raised; grey: range of the nominal runs)',
-                 fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 def parse_fault_specs(items: list[str]) -> tuple[dict[str, list[float]], dict[str, tuple]]:

@@ -14,7 +14,8 @@ from servovalve_twin.prognostics.monitor import (ERROR, OK, RESIDUALS, WARN, Hea
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.config import load_scenario
 from servovalve_twin.runs import simulate
-from servovalve_twin.prognostics.sweep import make_cases, run_case, run_cases, write_dataset
+from servovalve_twin.prognostics.dataset import write_dataset
+from servovalve_twin.prognostics.sweep import make_cases, run_case, run_cases
 from cases import PAPER
 
 
@@ -285,7 +286,7 @@ def test_sweep_streams_rows_without_traces_unless_asked(tmp_path):
     cases = make_cases(faults={'leakage_growth': [20.0]}, repeats=3, nominal_runs=1,
                        vary={'M': 0.1}, seed=5)
     full = run_cases(cases, workers=1)
-    light = list(iter_results(cases, workers=2, traces=False))
+    light = sorted(iter_results(cases, workers=2, traces=False), key=lambda r: r['row']['run_id'])
     assert same_rows(light, full) and all(r['traces'] == {} for r in light)
     write_dataset(tmp_path / 'rows', iter(light))
     assert not (tmp_path / 'rows' / 'traces.npz').exists()
@@ -297,3 +298,97 @@ def test_sweep_streams_rows_without_traces_unless_asked(tmp_path):
         for r in full:
             for k, v in r['traces'].items():
                 np.testing.assert_array_equal(npz[f'run{r["row"]["run_id"]}_{k}'], v)
+
+
+def _stopped_after(results, k, exc):
+    """The first ``k`` of ``results``, last first (as runs finish out of order), then ``exc``."""
+    yield from reversed(results[:k])
+    raise exc
+
+
+@pytest.mark.parametrize('exc, code', [(KeyboardInterrupt(), 130), (None, 2)])
+def test_a_stopped_sweep_keeps_the_runs_that_finished(tmp_path, exc, code):
+    """Ctrl-C, or a worker process lost (BrokenProcessPool), part-way through the stream: the
+    dataset holds exactly the runs that had finished, in run order, in every file, and the
+    error says how many of how many."""
+    import pyarrow.parquet as pq
+    from concurrent.futures.process import BrokenProcessPool
+    from servovalve_twin.prognostics.dataset import SweepStopped
+    cases = make_cases(faults={'leakage_growth': [20.0]}, repeats=4, nominal_runs=2, seed=5)
+    results = run_cases(cases, workers=1, traces=True)
+    with pytest.raises(SweepStopped, match='after 3 of 6 runs') as info:
+        write_dataset(tmp_path / 's', _stopped_after(results, 3, exc or BrokenProcessPool()),
+                      total=6)
+    assert info.value.code == code
+    with open(tmp_path / 's' / 'dataset.csv', newline='') as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r['run_id']) for r in rows] == [0, 1, 2]
+    assert pq.read_table(tmp_path / 's' / 'dataset.parquet').column('run_id').to_pylist() == \
+        [0, 1, 2]
+    summary = json.loads((tmp_path / 's' / 'summary.json').read_text())
+    assert summary['runs'] == 3 and summary['nominal_runs'] == 2
+    with np.load(tmp_path / 's' / 'traces.npz') as npz:
+        assert {f.split('_')[0] for f in npz.files} == {'run0', 'run1', 'run2'}
+
+
+def test_a_sweep_writes_into_a_new_or_empty_directory_only(tmp_path):
+    (tmp_path / 'used').mkdir()
+    (tmp_path / 'used' / 'dataset.csv').write_text('mine\n')
+    cases = make_cases(faults={}, nominal_runs=1)
+    with pytest.raises(TwinError, match='not an empty directory'):
+        write_dataset(tmp_path / 'used', iter(run_cases(cases, workers=1)))
+    assert (tmp_path / 'used' / 'dataset.csv').read_text() == 'mine\n'
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    import os
+    out = []
+    for entry in os.listdir('/proc'):
+        if entry.isdigit():
+            try:
+                with open(f'/proc/{entry}/stat') as fh:
+                    if int(fh.read().rsplit(')', 1)[1].split()[1]) == pid:
+                        out.append(int(entry))
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('how', ['SIGINT to the parent', 'SIGKILL to a worker'])
+def test_a_sweep_stopped_by_a_signal_keeps_its_finished_runs(tmp_path, how):
+    """The CLI on a 2-worker pool, stopped once runs have reached dataset.csv: Ctrl-C (the
+    parent alone: it was swallowed, rc 0) ends it with 130 at once; a killed worker (a
+    BrokenProcessPool traceback) with 2 -- one line each, and the dataset holds every run
+    that had finished, each once, in run order."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    out = tmp_path / 's'
+    proc = subprocess.Popen([sys.executable, '-m', 'servovalve_twin.cli', 'sweep', '--fault',
+                             'leakage_growth:5', '--repeats', '5000', '--nominal', '0',
+                             '--workers', '2', '--out', str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / 'dataset.csv').exists() or \
+                (out / 'dataset.csv').read_text().count('\n') < 8:
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.05)
+        if how.startswith('SIGINT'):
+            proc.send_signal(signal.SIGINT)
+        else:
+            os.kill(_children(proc.pid)[0], signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    print(err.strip())
+    assert proc.returncode == (130 if how.startswith('SIGINT') else 2)
+    assert err.count('\n') == 1 and 'Traceback' not in err and 'of 5000 runs' in err
+    with open(out / 'dataset.csv', newline='') as fh:
+        ids = [int(r['run_id']) for r in csv.DictReader(fh)]
+    assert 7 <= len(ids) < 5000 and ids == sorted(set(ids))
+    assert f'after {len(ids)} of 5000 runs' in err

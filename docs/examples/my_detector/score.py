@@ -11,7 +11,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from servovalve_twin.prognostics.sweep import make_cases, run_cases, summarize  # noqa: E402
+from servovalve_twin.prognostics.dataset import summarize  # noqa: E402
+from servovalve_twin.prognostics.sweep import make_cases, run_cases  # noqa: E402
 
 SEVERITIES = [2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0]
 VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}
