@@ -136,6 +136,13 @@ def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
             if not isinstance(tm, dict):
                 continue
             name = tm.get('name')
+            n_meta = entry.get('message_count')
+            if isinstance(name, str) and isinstance(n_meta, int) and not isinstance(n_meta, bool) \
+                    and n_meta != (topics[name].count if name in topics else 0):
+                # sqlite3 keeps no checksum: a count that disagrees is what can be checked
+                raise BagError(f'bag {str(p)!r} is corrupt: metadata.yaml counts {n_meta} '
+                               f'messages on {name}, its storage files hold '
+                               f'{topics[name].count if name in topics else 0}')
             if isinstance(name, str) and name in topics and tm.get('offered_qos_profiles') \
                     is not None:
                 qos = normalise_qos(tm['offered_qos_profiles'])

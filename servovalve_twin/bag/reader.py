@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import BagError
+from ..physics.simulate import CSV_COLUMNS
 from .anybag import AnyBag, open_any_bag
 from .cdr import decode_float64
 from .provenance import Provenance
@@ -64,9 +65,43 @@ def float64_series(bag: AnyBag, topics=None, counts: dict[str, int] | None = Non
         if topic in series:
             t, v = series[topic]
             t.append(t_ns)
-            v.append(decode_float64(data))
-    return {k: (np.array(t, dtype=np.int64), np.array(v, dtype=float))
-            for k, (t, v) in series.items() if t}
+            try:
+                v.append(decode_float64(data))
+            except ValueError as exc:
+                raise BagError(f'bag {str(bag.path)!r} is corrupt: its message on {topic} at '
+                               f'{t_ns * 1e-9:.6f} s: {exc}') from None
+    out = {k: (np.array(t, dtype=np.int64), np.array(v, dtype=float))
+           for k, (t, v) in series.items() if t}
+    period = bag.provenance.control_period
+    if period:
+        check_ticks(bag.path, out, int(round(period * 1e9)))
+    return out
+
+
+#: the signals the plant publishes at every tick (not the port pressures: see check_ticks)
+_EVERY_TICK = frozenset(CSV_COLUMNS[1:])
+
+
+def check_ticks(path: Path, series: dict[str, tuple[np.ndarray, np.ndarray]], period_ns: int
+                ) -> None:
+    """The twin publishes its Float64 topics at control-period ticks, the plant's signals at
+    every one (the port pressures only while a model with ports is in force; an algorithm's
+    outputs at its own ticks): a message off that grid, twice at one tick or, for a signal,
+    missing between two is a damaged bag -- sqlite3 keeps no checksum, so a flipped byte in a
+    timestamp would otherwise drop a tick from every table silently."""
+    for topic, (t, _) in series.items():
+        if not t.size:
+            continue
+        step = np.diff(t)
+        gaps_allowed = topic.rsplit('/', 1)[-1] not in _EVERY_TICK
+        bad = np.nonzero((step <= 0) | (step % period_ns != 0) | (
+            (step != period_ns) & (not gaps_allowed)))[0]
+        off = t[0] % period_ns != 0
+        if off or bad.size:
+            at = t[0] if off else t[bad[0] + 1]
+            raise BagError(f'bag {str(path)!r} is corrupt: {topic} is not one message per '
+                           f'control period ({period_ns * 1e-6:g} ms) at {at * 1e-9:.6f} s (a '
+                           'damaged or edited file; sqlite3 keeps no checksum)')
 
 
 def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:

@@ -19,6 +19,7 @@ from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.bag.storages import get_registered_readers
 from servovalve_twin.cli import main
 from servovalve_twin.config import reference_dir
+from servovalve_twin.errors import BagError
 
 END_NS = 400_000_000
 REF = reference_dir() / 'paper_HD'
@@ -247,3 +248,54 @@ def test_a_sqlite3_bag_is_read_without_writing_beside_it(layouts, tmp_path):
     run = read_bag(bag)
     np.testing.assert_array_equal(run.signals['xj'], xj)
     assert sorted(p.name for p in bag.iterdir()) == before
+
+
+_XJ = "(SELECT id FROM topics WHERE name = '/xj')"
+SQLITE_DAMAGE = {
+    # what was edited -> the SQL, and a fragment of the refusal
+    'a timestamp off the tick grid': (
+        f'UPDATE messages SET timestamp = timestamp + 1 WHERE id = (SELECT id FROM messages '
+        f'WHERE topic_id = {_XJ} ORDER BY timestamp LIMIT 1 OFFSET 300)',
+        '/xj is not one message per control period (1 ms) at 0.300000 s'),
+    'a timestamp moved onto the next tick': (
+        f'UPDATE messages SET timestamp = timestamp + 1000000 WHERE id = (SELECT id FROM '
+        f'messages WHERE topic_id = {_XJ} ORDER BY timestamp LIMIT 1 OFFSET 300)',
+        'is not one message per control period'),
+    'a message cut short': (
+        f'UPDATE messages SET data = substr(data, 1, 7) WHERE id = (SELECT id FROM messages '
+        f'WHERE topic_id = {_XJ} ORDER BY timestamp LIMIT 1 OFFSET 300)',
+        'its message on /xj at 0.300000 s: not a little-endian CDR'),
+    'a message deleted': (
+        f'DELETE FROM messages WHERE id = (SELECT id FROM messages WHERE topic_id = {_XJ} '
+        f'ORDER BY timestamp LIMIT 1 OFFSET 300)',
+        'metadata.yaml counts'),
+}
+
+
+@pytest.mark.parametrize('damage', SQLITE_DAMAGE)
+def test_a_damaged_sqlite3_bag_is_refused_never_read_silently(layouts, tmp_path, capsys,
+                                                               damage):
+    """sqlite3 keeps no checksum: what can be checked is -- counts against metadata.yaml,
+    one message per control period from 0 on each of the plant's signals, CDR that decodes.
+    Each damage used to give a quietly different table (a tick dropped from every signal)."""
+    import shutil
+    import sqlite3
+    bags, _, xj = layouts
+    bag = tmp_path / 'b'
+    shutil.copytree(bags['sqlite3'][0], bag)
+    np.testing.assert_array_equal(read_bag(bag).signals['xj'], xj)     # intact: read
+    sql, fragment = SQLITE_DAMAGE[damage]
+    (f,) = bag.glob('*.db3')
+    con = sqlite3.connect(f)
+    assert con.execute(sql).rowcount == 1
+    con.commit()
+    con.close()
+    with pytest.raises(BagError, match='corrupt') as info:
+        read_bag(bag)
+    assert fragment in str(info.value)
+    for args in (['evaluate', str(bag), '--algorithm',
+                  'servovalve_twin.prognostics.monitor:MonitorAlgorithm'],
+                 ['compare', str(bag), str(bag)]):
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and err.count('\n') == 1, err
