@@ -111,9 +111,16 @@ class Storage:
 
 
 def mcap_errors() -> tuple[type[BaseException], ...]:
-    """Everything the mcap library raises on a truncated or damaged file."""
+    """Everything the mcap library raises on a truncated or damaged file -- its own errors,
+    and its decompressors' on a damaged chunk (zstandard's ZstdError; lz4's RuntimeError)."""
     from mcap.exceptions import McapError
-    return (McapError,) + _CORRUPT
+    extra: tuple[type[BaseException], ...] = (RuntimeError,)
+    try:
+        from zstandard import ZstdError
+        extra += (ZstdError,)
+    except ImportError:                     # no zstd: such chunks fail as McapError
+        pass
+    return (McapError,) + _CORRUPT + extra
 
 
 def crc_of(fh, start: int, end: int) -> int:
@@ -284,7 +291,13 @@ class Sqlite3Storage(Storage):
                    + (' WHERE ' + ' AND '.join(where) if where else '')
                    + ' ORDER BY timestamp, id')
             for tid, t, data in con.execute(sql, args):
-                yield names[tid], int(t), bytes(data)
+                if tid not in names or type(t) is not int or type(data) is not bytes:
+                    # no checksum: a damaged row is recognised by what it cannot be
+                    raise BagError(f'{str(f)!r} is corrupt: a message row with topic id '
+                                   f'{tid!r}, timestamp {t!r}, data of type '
+                                   f'{type(data).__name__} (expected a topic of the file, an '
+                                   'integer time and bytes)')
+                yield names[tid], t, data
         except sqlite3.DatabaseError as exc:
             raise BagError(f'{str(f)!r} is not a readable rosbag2 sqlite3 file ({exc})'
                            ) from None
