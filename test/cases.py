@@ -149,6 +149,10 @@ BAD_COMMANDS = [
           '--algorithm-param', 'bogus=1'], "unknown parameter 'bogus'"),
     _row(['evaluate', '@paper_HD', '--algorithm', 'leak_detector:LeakDetector',
           '--algorithm-param', 'min_hold=x'], 'must be a int'),
+    _row(['run', '--valve-model', 'C2', '--no-bag', '--monitor', 'SQ', '--algorithm',
+          'servovalve_twin.prognostics.monitor:MonitorAlgorithm'],
+         'publishes monitor/health_dxj, which another node of the twin publishes already',
+         _ROS),
     # the built-in test and detection limits
     _row(['bit', '--out', 'b.yaml', '--duration', '0.2'], 'BIT duration 0.2 s'),
     _row(['bit', '--out', 'b.yaml', '--max-load', '1e6'], 'BIT load'),

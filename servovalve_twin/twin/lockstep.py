@@ -221,6 +221,11 @@ class Twin:
         for i, spec in enumerate(algorithms):
             cls, aparams = spec if isinstance(spec, tuple) else (spec, None)
             alg = load_algorithm(cls, aparams)
+            taken = sorted(t for t in algorithm_topics(alg) if t in topics and t != 'diagnostics')
+            if taken:
+                # two publishers of one signal: the bag would hold two values per tick
+                raise TwinError(f'algorithm {alg.title} publishes {taken[0]}, which another node '
+                                'of the twin publishes already: give it another topic_prefix')
             name = getattr(alg, 'node_name', None) or (
                 'algorithm' if i == 0 else f'algorithm_{i + 1}')
             self.algorithms.append(AlgorithmNode(alg, name=name, params=self.params, **kw,
