@@ -58,24 +58,49 @@ def float64_series(bag: AnyBag, topics=None, counts: dict[str, int] | None = Non
     f64 = set(bag.topics_of_type(FLOAT64))
     if topics is not None:
         f64 &= set(topics)
-    series: dict[str, tuple[list[int], list[float]]] = {t: ([], []) for t in f64}
+    # arrays sized by the bag's own counts, filled in place: 16 bytes a message, where lists
+    # of Python ints and floats took ~90 (a 100 s run's million messages: 94 -> 16 MB)
+    series = {t: _Series(bag.topics[t].count) for t in f64}
     for topic, t_ns, data in bag.messages(topics=None if counts is not None else f64):
         if counts is not None:
             counts[topic] = counts.get(topic, 0) + 1
-        if topic in series:
-            t, v = series[topic]
-            t.append(t_ns)
+        s = series.get(topic)
+        if s is not None:
             try:
-                v.append(decode_float64(data))
+                s.append(t_ns, decode_float64(data))
             except ValueError as exc:
                 raise BagError(f'bag {str(bag.path)!r} is corrupt: its message on {topic} at '
                                f'{t_ns * 1e-9:.6f} s: {exc}') from None
-    out = {k: (np.array(t, dtype=np.int64), np.array(v, dtype=float))
-           for k, (t, v) in series.items() if t}
+    out = {k: s.arrays() for k, s in series.items() if s.n}
     period = bag.provenance.control_period
     if period:
         check_ticks(bag.path, out, int(round(period * 1e9)))
     return out
+
+
+class _Series:
+    """One topic's (log time, value) pairs in arrays grown by doubling from the expected
+    count (exact when the bag's summary is right; a summary that undercounts still reads,
+    and read_bag then refuses the disagreement)."""
+
+    def __init__(self, expected: int):
+        size = max(int(expected), 16)
+        self.t = np.empty(size, dtype=np.int64)
+        self.v = np.empty(size)
+        self.n = 0
+
+    def append(self, t_ns: int, value: float) -> None:
+        if self.n == self.t.size:
+            self.t = np.resize(self.t, 2 * self.n)
+            self.v = np.resize(self.v, 2 * self.n)
+        self.t[self.n] = t_ns
+        self.v[self.n] = value
+        self.n += 1
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.n == self.t.size:               # the summary's count: no copy
+            return self.t, self.v
+        return self.t[:self.n].copy(), self.v[:self.n].copy()
 
 
 #: the signals the plant publishes at every tick (not the port pressures: see check_ticks)
