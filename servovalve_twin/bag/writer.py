@@ -134,7 +134,10 @@ class BagWriter:
             # lnk/b would land wherever lnk points (a link planted in a shared directory)
             raise BagError(f'bag directory {str(self.dir)!r}: {str(self.dir.parent)!r} is a '
                            'symbolic link; give the directory it points to')
-        here = Path.cwd().resolve()
+        try:
+            here = Path.cwd().resolve()
+        except OSError:                         # a working directory that was removed
+            here = Path('/')
         if self.dir.resolve() in (here, *here.parents) or self.dir.name in ('', '.', '..'):
             raise BagError(f'bag directory {str(self.dir)!r} is the working directory or one '
                            'of its parents: give the bag a directory of its own')

@@ -1,6 +1,7 @@
 """Your own PHM algorithm, written once and run live in the twin, on recorded bags and over fault
 sweeps -- with identical results, because all three hosts call it through
-:class:`AlgorithmRunner`, one control period at a time, with the same floats.
+:class:`AlgorithmRunner` with the same floats: one control period at a time, or a whole run
+at once where the algorithm offers ``steps`` (which must give what stepping gives).
 
 An algorithm is a plain Python class (no rclpy), in the style of progpy's models::
 
@@ -27,7 +28,9 @@ An algorithm is a plain Python class (no rclpy), in the style of progpy's models
 - ``step(t, u)``: ``t`` the tick's time [s] (tick index times the period), ``u`` the inputs by
   name; returns every output by name;
 - ``health()``: ``None`` or :class:`Health` (level OK/WARN/ERROR, a message, key/values),
-  published live as ``diagnostic_msgs/DiagnosticArray`` and scored in sweeps (ERROR = detection).
+  published live as ``diagnostic_msgs/DiagnosticArray`` and scored in sweeps (ERROR = detection);
+- ``steps(t, u)`` (optional): a whole run's ticks in one call, for the hosts that hold one
+  (:meth:`Algorithm.steps`).
 
 A bad class path, a missing input or output name, or an algorithm that raises is one
 :class:`~servovalve_twin.errors.TwinError` line naming the algorithm and the step time.

@@ -133,7 +133,7 @@ def measured(signals: Mapping[str, np.ndarray], noise: Mapping[str, float],
     return out
 
 
-#: the most runs one sweep may ask for (~30 min at the 2-worker rate of bench_sweep): a typo
+#: the most runs one sweep may ask for (~17 min at bench_sweep's ~100 runs/s on 2 workers): a typo
 #: such as --draws 1000000000 is refused before it fills the memory with cases
 MAX_RUNS = 100_000
 
