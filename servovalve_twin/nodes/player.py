@@ -45,7 +45,7 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy._rclpy_pybind11 import RCLError
@@ -59,6 +59,7 @@ from std_srvs.srv import Trigger
 from ..bag.anybag import AnyBag, open_any_bag
 from ..errors import BagError, TwinError
 from .clock import clock_msg
+from .play_options import OPTION_DOCS, PlayOptions, absolute_topic, typed_option
 
 _RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
                 'best_effort': ReliabilityPolicy.BEST_EFFORT}
@@ -66,78 +67,9 @@ _DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
                'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
 
 
-@dataclasses.dataclass
-class PlayOptions:
-    """What ``ros2 bag play`` takes, with its option names."""
-
-    rate: float = 1.0
-    clock: float = 0.0                  # Hz of /clock from the bag time; 0 = off
-    topics: tuple[str, ...] = ()
-    exclude_topics: tuple[str, ...] = ()
-    loop: bool = False
-    delay: float = 0.0
-    start_offset: float = 0.0
-    playback_duration: float = 0.0      # 0 = to the end
-    start_paused: bool = False
-    remap: tuple[str, ...] = ()         # FROM:=TO
-
-    def check(self) -> None:
-        lo, hi = RATE_RANGE
-        if not lo <= self.rate <= hi:
-            # a rate of 1e-300 was accepted and played 13 messages in 8 s, never ending
-            raise TwinError(f'rate must be a factor in [{lo:g}, {hi:g}], got {self.rate!r}')
-        if not 0 <= self.clock <= MAX_CLOCK_HZ:
-            raise TwinError(f'clock must be in [0, {MAX_CLOCK_HZ:g}] Hz (0 = no /clock), got '
-                            f'{self.clock!r}')
-        for name in ('delay', 'start_offset', 'playback_duration'):
-            v = getattr(self, name)
-            if not 0 <= v <= MAX_SECONDS:
-                raise TwinError(f'{name} must be in [0, {MAX_SECONDS:g}] s, got {v!r}')
-        targets = self.remaps().values()
-        if '/clock' in targets:
-            raise TwinError('a remap onto /clock is not allowed: /clock carries simulated time '
-                            '(rosgraph_msgs/Clock; the player publishes it with --clock)')
-
-    def remaps(self) -> dict[str, str]:
-        out = {}
-        for item in self.remap:
-            a, sep, b = item.partition(':=')
-            if not sep or not a or not b:
-                raise TwinError(f'remap expects FROM:=TO, got {item!r}')
-            out[_absolute(a)] = _absolute(b)
-        return out
-
-
-#: the playback rates allowed: slower than 1/1000 never ends a bag of seconds in a day
-RATE_RANGE = (1e-3, 1e6)
-#: the longest delay, offset or playback duration [s] (about 11.6 days)
-MAX_SECONDS = 1e6
-#: the fastest /clock [Hz]
-MAX_CLOCK_HZ = 1e4
-
-#: the player's parameters: rosbag2's ``ros2 bag play`` options
-OPTION_DOCS = {
-    'bag': 'the bag played (directory or file)',
-    'rate': 'playback rate: bag seconds per wall second',
-    'clock': 'publish /clock from the bag time at this many Hz (0: off)',
-    'topics': 'only these topics (empty: every topic)',
-    'exclude_topics': 'not these topics',
-    'loop': 'play again from the start at the end',
-    'delay': 'wall seconds to wait before playing',
-    'start_offset': 'start this many seconds into the bag',
-    'playback_duration': 'play this many bag seconds (0: to the end)',
-    'start_paused': 'start paused (resume with ~/resume)',
-    'remap': 'FROM:=TO topic remappings',
-}
-
-
 #: how long the player waits at the end of the bag for its reliable subscribers to acknowledge
 #: what it played before it goes [s]
 ACK_WAIT_S = 30.0
-
-
-def _absolute(topic: str) -> str:
-    return topic if topic.startswith('/') else '/' + topic
 
 
 def qos_for(recorded: list[dict]) -> QoSProfile:
@@ -189,8 +121,8 @@ class Player(Node):
         remaps = options.remaps()
         self.warnings: list[str] = []
         self.pubs = {}
-        wanted = set(_absolute(t) for t in options.topics)
-        unwanted = set(_absolute(t) for t in options.exclude_topics)
+        wanted = set(absolute_topic(t) for t in options.topics)
+        unwanted = set(absolute_topic(t) for t in options.exclude_topics)
         for name_, info in sorted(bag.topics.items()):
             if wanted and name_ not in wanted or name_ in unwanted:
                 continue
@@ -440,22 +372,6 @@ def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None 
                 bag_duration_s=bag.duration_ns * 1e-9, warnings=player.warnings)
 
 
-def _typed(name: str, value: Any, default: Any) -> Any:
-    """A ``-p`` value as the option's type (that of its default), or one error line: rcl
-    hands over whatever YAML made of the text (``-p rate:=fast`` is the string 'fast')."""
-    if isinstance(default, tuple):
-        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
-            return tuple(value)
-        raise TwinError(f'{name} = {value!r}: expected a list of strings, e.g. "[\'/xj\']"')
-    if isinstance(default, bool):
-        if isinstance(value, bool):
-            return value
-        raise TwinError(f'{name} = {value!r}: expected true or false')
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return type(default)(value)
-    raise TwinError(f'{name} = {value!r}: expected a number')
-
-
 def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin player --ros-args -p bag:=DIR [-p rate:=2.0] [-p clock:=40.0]
     [-p topics:="['/xj']"] [-p loop:=true] ...``."""
@@ -478,7 +394,7 @@ def main(args: Sequence[str] | None = None) -> int:
         values = ros_parameters(context, 'player', ['bag'] + fields)
         if not values.get('bag'):
             raise TwinError('give the bag to play: --ros-args -p bag:=DIR')
-        opts = {f.name: _typed(f.name, values[f.name], f.default)
+        opts = {f.name: typed_option(f.name, values[f.name], f.default)
                 for f in dataclasses.fields(PlayOptions) if f.name in values}
         result = play(values['bag'], PlayOptions(**opts), context=context,
                       stop=lambda: bool(stop), on_ready=lambda player: print(
