@@ -53,6 +53,23 @@ def messages(n: int = 60, t0_ns: int = 1_000_000_000, dt_ns: int = 10_000_000):
     return sorted(out, key=lambda m: m[2])
 
 
+def reference_messages(end_ns: int) -> tuple[list, dict[str, str]]:
+    """The packaged HD reference bag's messages up to ``end_ns`` (as :func:`write_bag` takes
+    them) and its provenance record, read with the mcap library alone."""
+    from mcap.reader import make_reader
+    from servovalve_twin.config import reference_dir
+    msgs, record = [], {}
+    with open(next((reference_dir() / 'paper_HD').glob('*.mcap')), 'rb') as fh:
+        reader = make_reader(fh)
+        for schema, ch, m in reader.iter_messages(log_time_order=True):
+            if m.log_time <= end_ns:
+                msgs.append((ch.topic, schema.name, m.log_time, bytes(m.data)))
+        for meta in reader.iter_metadata():
+            if meta.name == 'servovalve_twin':
+                record = dict(meta.metadata)
+    return msgs, record
+
+
 def _qos(topic: str, version: int):
     if version >= 9:
         return QOS_V9

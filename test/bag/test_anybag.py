@@ -12,9 +12,8 @@ import struct
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
-from bagmaker import write_bag
+from bagmaker import reference_messages, write_bag
 from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.bag.storages import get_registered_readers
 from servovalve_twin.cli import main
@@ -43,15 +42,7 @@ LAYOUTS = {
 def _reference():
     """(messages as bagmaker takes them, provenance record, /xj values) from the packaged
     bag, read with the mcap library alone."""
-    msgs, record = [], {}
-    with open(next(REF.glob('*.mcap')), 'rb') as fh:
-        reader = make_reader(fh)
-        for schema, ch, m in reader.iter_messages(log_time_order=True):
-            if m.log_time <= END_NS:
-                msgs.append((ch.topic, schema.name, m.log_time, bytes(m.data)))
-        for meta in reader.iter_metadata():
-            if meta.name == 'servovalve_twin':
-                record = dict(meta.metadata)
+    msgs, record = reference_messages(END_NS)
     xj = [struct.unpack('<d', d[4:12])[0] for t, _, _, d in msgs if t == '/xj']
     return msgs, record, np.array(xj)
 

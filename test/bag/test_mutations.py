@@ -10,12 +10,11 @@ import shutil
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
-from bagmaker import write_bag
+from bagmaker import reference_messages, write_bag
 from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.cli import main
-from servovalve_twin.config import load_scenario, reference_dir
+from servovalve_twin.config import load_scenario
 from servovalve_twin.errors import BagError, TwinError
 
 pytestmark = pytest.mark.slow
@@ -28,15 +27,8 @@ TRIALS = 150
 def intact(tmp_path_factory):
     """The packaged HD bag's first 60 ms, as an MCAP (zstd) and a sqlite3 bag with the
     twin's provenance, and each one's table."""
-    ref = reference_dir() / 'paper_HD'
-    msgs, record = [], {}
-    with open(next(ref.glob('*.mcap')), 'rb') as fh:
-        reader = make_reader(fh)
-        for schema, ch, m in reader.iter_messages(log_time_order=True):
-            if m.log_time <= END_NS:
-                msgs.append((ch.topic, schema.name, m.log_time, bytes(m.data)))
-        record = next(dict(m.metadata) for m in reader.iter_metadata()
-                      if m.name == 'servovalve_twin')
+    msgs, record = reference_messages(END_NS)
+    assert record                                   # the twin's provenance, tick grid checked
     root = tmp_path_factory.mktemp('intact')
     out = {}
     for storage, kw in (('mcap', dict(compression='zstd')), ('sqlite3', {})):
