@@ -24,14 +24,16 @@ from .physics.simulate import CSV_COLUMNS, RunResult
 def simulate(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
              overrides: Mapping[str, Any] | None = None, *, ecu_period: float | None = None,
              params: EhaParams | None = None,
-             initial: Mapping[str, float] | None = None) -> RunResult:
+             initial: Mapping[str, float] | None = None, sensors: Mapping | None = None,
+             sensor_seed: int | None = None) -> RunResult:
     """Run ``scenario`` -- a built-in name ('paper'), a YAML path, a mapping or a
     :class:`Scenario` -- with ``valve_model``, ROS-free (see
     :func:`servovalve_twin.physics.simulate.simulate`); ``info['wall_s']`` is the call's wall
     time."""
     wall = time.perf_counter()
     run = _physics.simulate(valve_model, load_scenario(scenario), overrides,
-                            ecu_period=ecu_period, params=params, initial=initial)
+                            ecu_period=ecu_period, params=params, initial=initial,
+                            sensors=sensors, sensor_seed=sensor_seed)
     run.info['wall_s'] = time.perf_counter() - wall
     return run
 

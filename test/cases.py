@@ -59,6 +59,8 @@ FILES: dict[str, bytes | str] = {
     'negative_psr.yaml': 'psr: [[0.0, -2.0e+7]]\n',
     'huge_psr.yaml': 'psr: [[0.0, 1.0e+300]]\n',
     'long.yaml': 'duration: 1.0e+6\n',
+    'sensor_cor.yaml': 'sensors: {cor: {noise: 1.0}}\n',
+    'sensor_period.yaml': 'xj: {noise: 1.0e-6, period: 0.0025}\n',
     'elsewhere/keep.txt': 'not a bag\n',
     'notabag/keep.txt': 'not a bag\n',
 }
@@ -87,6 +89,13 @@ BAD_COMMANDS = [
     _row(_SIM + ['--scenario', 'long.yaml', '--out', 'x.csv'],
          'scenario.duration must be in (0, 3600] s'),
     _row(_SIM + ['--scenario', 'nope.yaml', '--out', 'x.csv'], 'cannot read scenario file'),
+    # sensors
+    _row(_SIM + ['--scenario', 'sensor_cor.yaml', '--out', 'x.csv'],
+         "scenario.sensors: unknown key 'cor'"),
+    _row(_SIM + ['--sensor-seed', '3', '--out', 'x.csv'], "'paper' declares no sensors"),
+    _row(_SIM + ['--sensor-seed', '-1', '--out', 'x.csv'], 'expected an integer in [0, 2**63'),
+    _row(['fmu', '--valve-model', 'C2', '--sensors', 'sensor_period.yaml', 'x.fmu'],
+         'must be a whole number of control periods'),
     _row(['simulate', '--valve-model', 'C9', '--out', 'x.csv'], "unknown valve model 'C9'"),
     _row(_SIM + ['--param', 'M=-1', '--out', 'x.csv'], 'M = -1.0'),
     _row(_SIM + ['--param', 'Q=1', '--out', 'x.csv'], "unknown parameter 'Q'"),
@@ -197,6 +206,8 @@ BAD_EXECUTABLES = [
                  id='replay YAML'),
     pytest.param('plant', ['-p', 'M:=@x'], "Couldn't parse parameter override rule",
                  id='plant YAML'),
+    pytest.param('plant', ['-p', 'sensors:="{xj: {noise: -1.0}}"'],
+                 'parameter sensors.xj.noise must be >= 0', id='plant sensors'),
 ]
 
 

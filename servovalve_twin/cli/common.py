@@ -70,6 +70,17 @@ def positive_float(text: str) -> float:
     return v
 
 
+def seed_int(text: str) -> int:
+    """A seed: an integer in [0, 2**63 - 1]."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected an integer, got {text!r}') from None
+    if not 0 <= v < 2 ** 63:
+        raise argparse.ArgumentTypeError(f'expected an integer in [0, 2**63 - 1], got {text}')
+    return v
+
+
 def float_list(text: str) -> list[float]:
     try:
         vals = [float(v) for v in text.split(',') if v.strip()]

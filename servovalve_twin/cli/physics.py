@@ -8,7 +8,7 @@ import sys
 
 from ..errors import TwinError
 from .common import (Command, add_param_options, add_scenario_options, float_list, overrides,
-                     positive_float)
+                     positive_float, seed_int)
 
 
 class Simulate(Command):
@@ -20,16 +20,26 @@ class Simulate(Command):
         p.add_argument('--ecu-period', type=positive_float, metavar='S',
                        help='sample the ECU with this period (a multiple of DT); default '
                             'continuous')
+        p.add_argument('--sensor-seed', type=seed_int, metavar='N',
+                       help="the noise realisation of the scenario's sensors (default their "
+                            'seed)')
         p.add_argument('--out', required=True, metavar='FILE.csv',
                        help="the 1 ms rows t,com,fr,psr,cor,xs,xj,dxj,p12,qj (HD adds p1,p2), "
-                            "SI; CSV, or Parquet for a .parquet name; '-' writes CSV to "
-                            'standard output')
+                            'SI -- with sensors, what they read, and the truth of each sensed '
+                            "signal as xj_true, ...; CSV, or Parquet for a .parquet name; '-' "
+                            'writes CSV to standard output')
 
     def main(self, args):
+        from ..config import load_scenario
         from ..runs import simulate, write_table
-        result = simulate(args.valve_model, args.scenario, overrides(args),
-                          ecu_period=args.ecu_period)
-        write_table(args.out, result.signals)
+        scenario = load_scenario(args.scenario)
+        if args.sensor_seed is not None and not scenario.sensors:
+            raise TwinError(f'--sensor-seed: the scenario {scenario.name!r} declares no sensors '
+                            '(add a sensors: section, physics/sensors.py)')
+        result = simulate(args.valve_model, scenario, overrides(args),
+                          ecu_period=args.ecu_period, sensor_seed=args.sensor_seed)
+        write_table(args.out, {**result.signals,
+                               **{f'{k}_true': v for k, v in result.truth.items()}})
         info = ', '.join(f'{k}={v}' for k, v in result.info.items() if k != 'wall_s')
         print(f'{result.valve_model} on {result.scenario.name}: {len(result["t"])} rows -> '
               f'{"stdout" if args.out == "-" else args.out} '
@@ -148,6 +158,10 @@ class Fmu(Command):
         p.add_argument('--control-period', type=float, default=1e-3, metavar='S',
                        help='the ECU sampling period [s], a multiple of DT (default 0.001); a '
                             'communication step must be a whole number of them')
+        p.add_argument('--sensors', metavar='FILE.yaml',
+                       help="the unit's sensors: a YAML file with a scenario's sensors "
+                            'mapping (seed and per signal noise, bias, drift, quantisation, '
+                            'period); the FMU then has a sensor_seed parameter')
         p.add_argument('out', metavar='OUT.fmu', help='the FMU file to write (a new one)')
 
     def main(self, args):
@@ -157,8 +171,14 @@ class Fmu(Command):
             raise TwinError("the fmu command needs pythonfmu: pip install "
                             "'servovalve_twin[fmu]'")
         from ..fmu import build_fmu
+        sensors = None
+        if args.sensors:
+            from pathlib import Path
+            from ..config import read_yaml
+            sensors = read_yaml(Path(args.sensors), 'sensors file')
         t = time.perf_counter()
-        out = build_fmu(args.valve_model, args.out, control_period=args.control_period)
+        out = build_fmu(args.valve_model, args.out, control_period=args.control_period,
+                        sensors=sensors)
         print(f'{out}: FMI 2.0 co-simulation FMU of the EHA with {args.valve_model}, ECU every '
               f'{args.control_period:g} s ({out.stat().st_size / 1e3:.0f} kB, '
               f'{time.perf_counter() - t:.1f} s)')

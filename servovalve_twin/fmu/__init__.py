@@ -11,10 +11,12 @@ import json
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Any, Mapping
 
 from ..errors import TwinError
 from ..outputs import place_new
 from ..physics.params import DEFAULTS
+from ..physics.sensors import sensors_from_dict
 from ..physics.simulate import steps_per
 from ..physics.valves import get_valve_model
 
@@ -58,12 +60,17 @@ def _carry_package(dest: Path) -> Path:
     return pkg
 
 
-def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3) -> Path:
+def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3,
+              sensors: Mapping[str, Any] | None = None) -> Path:
     """Write ``out`` (.fmu): the EHA with ``valve_model``, its ECU sampled every
-    ``control_period``. Refuses an existing ``out`` (it overwrites nothing)."""
+    ``control_period``, measured by ``sensors`` (a mapping of the scenario's ``sensors``
+    schema; None: ideal). Refuses an existing ``out`` (it overwrites nothing)."""
     from pythonfmu.builder import FmuBuilder
     model = get_valve_model(valve_model)
-    steps_per(control_period, DEFAULTS, '--control-period')
+    n_sub = steps_per(control_period, DEFAULTS, '--control-period')
+    sens = sensors_from_dict(sensors, 'sensors')
+    if sens:
+        sens.table(n_sub, DEFAULTS.DT)          # the periods checked now, not in the importer
     out = Path(out)
     if out.suffix != '.fmu':
         raise TwinError(f'{out}: the FMU file must end in .fmu')
@@ -77,7 +84,8 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
         shutil.copyfile(Path(__file__).with_name('slave.py'), script)
         cfg = tmp / CONFIG
         cfg.write_text(json.dumps(dict(valve_model=model.name,
-                                       control_period=float(control_period))))
+                                       control_period=float(control_period),
+                                       sensors=sens.to_dict() if sens else None)))
         req = tmp / 'requirements.txt'
         req.write_text(_requirements())
         carried = _carry_package(tmp)

@@ -11,7 +11,9 @@ process compiles the physics (numba; seconds), as the FMU is unpacked afresh by 
 Variables: inputs ``com`` [m], ``fr`` [N], ``psr`` [Pa] -- *discrete*, held over a
 communication step as the twin holds them over a control period (an importer must not
 interpolate them); outputs ``xj``, ``dxj``, ``p12``, ``xs``; parameters every settable EHA
-parameter under its name (derived ones derive from them) and ``control_period``. A step is a
+parameter under its name (derived ones derive from them), ``control_period`` and, in an FMU
+built with sensors (``fmu --sensors``), ``sensor_seed``: the outputs are then what the sensors
+read and the ECU closes its loop on the measured XJ, as in ``simulate``. A step is a
 whole number of control periods of the ROS plant's compiled tick
 (:class:`servovalve_twin.physics.simulate.EhaPlant`), so the outputs are ``simulate``'s.
 """
@@ -35,6 +37,7 @@ except ImportError as exc:   # the importer's Python lacks what the FMU declares
 # its own name, so that it never shadows an installed servovalve_twin in the importing process
 from _servovalve_twin_fmu.errors import TwinError
 from _servovalve_twin_fmu.physics.params import DEFAULTS, PARAM_FIELDS
+from _servovalve_twin_fmu.physics.sensors import sensors_from_dict
 from _servovalve_twin_fmu.physics.simulate import EhaPlant, steps_per
 
 CONFIG = 'eha_fmu.json'
@@ -51,6 +54,8 @@ class EhaFmu(Fmi2Slave):
         cfg = json.loads((Path(self.resources) / CONFIG).read_text())
         self.valve_model = cfg['valve_model']
         self.control_period = float(cfg['control_period'])
+        self._sensors = sensors_from_dict(cfg.get('sensors'))
+        self.sensor_seed = self._sensors.seed if self._sensors else 0
         self.com, self.fr, self.psr = 0.0, 0.0, float(DEFAULTS.PSRN)
         self.xj = self.dxj = self.p12 = self.xs = 0.0
         self._plant = None
@@ -66,6 +71,10 @@ class EhaFmu(Fmi2Slave):
         self.register_variable(Real('control_period', causality=Fmi2Causality.parameter,
                                     variability=Fmi2Variability.fixed,
                                     description='ECU sampling period [s], a multiple of DT'))
+        if self._sensors:
+            self.register_variable(Integer('sensor_seed', causality=Fmi2Causality.parameter,
+                                           variability=Fmi2Variability.fixed,
+                                           description="the sensors' noise realisation"))
         for n, value in self._params.items():
             meta = PARAM_FIELDS[n].metadata
             self.register_variable(_TYPES[meta['kind']](
@@ -91,9 +100,13 @@ class EhaFmu(Fmi2Slave):
             params = DEFAULTS.replace(**self._params)
             self._n_sub = steps_per(self.control_period, params, 'control_period')
             self._plant = EhaPlant(self.valve_model, params)
+            if self._sensors:
+                self._plant.set_sensors(self._sensors.with_seed(int(self.sensor_seed)),
+                                        self.control_period)
         except TwinError as exc:
             self.log(str(exc))
             raise
+        self._t_ns = 0          # the plant's time: the sensors sample on its grid
         self._outputs()
 
     def do_step(self, current_time, step_size):
@@ -104,9 +117,14 @@ class EhaFmu(Fmi2Slave):
             raise ValueError(f'step {step_size} s is not a whole number of control periods '
                              f'({self.control_period} s)')
         plant = self._plant
+        sensed = plant.sensors is not None
         for _ in range(periods):
-            cor = plant.control(self.com, plant.xj)
+            xj = plant.sense_state(self._t_ns)[1] if sensed else plant.xj
+            cor = plant.control(self.com, xj)
             plant.tick(cor, self.fr, self.psr, self._n_sub)
+            if sensed:                  # P12 at the period's start: a sample may fall there
+                plant.sense_valve(self._t_ns)
+            self._t_ns += self._n_sub * plant.params.dt_ns
         self._outputs()
         return True
 
@@ -115,3 +133,9 @@ class EhaFmu(Fmi2Slave):
         self.xj, self.dxj, self.xs = plant.xj, plant.dxj, plant.xs
         # the valve's answer at the new state to the supply of the step just taken
         self.p12 = float(plant.response(self.fr, self.psr)[0])
+        if plant.sensors is not None:
+            # what the sensors read at the step's end (the next step's first period reads the
+            # state again at that instant: the same sample)
+            self.xs, self.xj, self.dxj = plant.sense_state(self._t_ns).tolist()
+            plant.last[:] = plant.response(self.fr, self.psr)
+            self.p12 = float(plant.sense_valve(self._t_ns)[0])

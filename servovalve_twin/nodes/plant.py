@@ -7,8 +7,10 @@ from typing import Any, Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor
 
+import json
+
 from ..bag.cdr import encode_jack_state
-from ..errors import ModelError
+from ..errors import ModelError, TwinError
 from ..physics.params import EhaParams
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model
@@ -30,7 +32,10 @@ class Plant(TwinNode):
     (sensor_msgs/JointState, joint ``jack``: position XJ [m], velocity DXJ [m/s], effort
     AJ*P12 [N]).
     Parameters: ``valve_model`` (string, one of the registry; switchable during a run: the
-    mechanical state is kept), ``control_period`` (double, s, read-only), and every physical
+    mechanical state is kept), ``control_period`` (double, s, read-only), ``sensors`` (string,
+    read-only: the unit's sensors as a JSON/YAML mapping of the scenario's ``sensors`` schema,
+    ``physics/sensors.py``; '' = ideal: XS, XJ, DXJ, P12, P1, P2 and the joint state are then
+    what the sensors read, and the ECU closes its loop on that XJ), and every physical
     parameter the plant reads (all but the ECU's GAP and CorM) with its unit and range (``DT``
     read-only).
 
@@ -47,8 +52,13 @@ class Plant(TwinNode):
         self.declare_parameter('valve_model', 'C2', ParameterDescriptor(
             description='servovalve fluid-dynamic model',
             additional_constraints='one of: ' + ', '.join(VALVE_MODEL_NAMES)))
+        self.declare_parameter('sensors', '', ParameterDescriptor(
+            description="the unit's sensors: a JSON/YAML mapping {seed: N, SIGNAL: {noise, "
+                        "bias, drift, quantisation, period}}; empty: ideal sensors",
+            read_only=True))
         self.plant = EhaPlant(self.get_parameter('valve_model').value, self.params)
         self.n_sub = steps_per(self.period, self.params, 'control_period')
+        self.plant.set_sensors(parse_sensors(self.get_parameter('sensors').value), self.period)
         self._joint = None                 # the JointState message, refilled every tick
         self.add_publishers(STATE_TOPICS + ('p12', 'qj', 'joint_states'))
         self._advertise_ports()
@@ -88,21 +98,28 @@ class Plant(TwinNode):
     # -- ticks --------------------------------------------------------------------------
     def begin_tick(self, t_ns: int, n_sub: int) -> None:
         """Lockstep: publish the state at t and wait for the tick's inputs."""
-        self._publish_state()
+        self._publish_state(t_ns)
         super().begin_tick(t_ns, n_sub)
 
-    def _publish_state(self) -> None:
-        self.emit_value('xs', self.plant.xs)
-        self.emit_value('xj', self.plant.xj)
-        self.emit_value('dxj', self.plant.dxj)
+    def _publish_state(self, t_ns: int) -> None:
+        """XS, XJ, DXJ at t as the sensors read them (the truth without sensors)."""
+        if self.plant.sensors is None:
+            self._state = (self.plant.xs, self.plant.xj, self.plant.dxj)
+        else:
+            self._state = tuple(self.plant.sense_state(t_ns).tolist())
+        self.emit_value('xs', self._state[0])
+        self.emit_value('xj', self._state[1])
+        self.emit_value('dxj', self._state[2])
 
     def step(self, tick: tuple[int, int], v: dict[str, float]) -> None:
         t_ns, n_sub = tick
         self._advance(t_ns, n_sub, v['cor'], v['fr'], v['psr'])
 
     def _advance(self, t_ns: int, n_sub: int, cor: float, fr: float, psr: float) -> None:
-        xj, dxj = self.plant.xj, self.plant.dxj
+        _, xj, dxj = self._state            # as published at the tick's start
         p12, qj, p1, p2 = self.plant.tick(cor, fr, psr, n_sub).tolist()
+        if self.plant.sensors is not None:
+            p12, p1, p2 = self.plant.sense_valve(t_ns).tolist()
         self.emit_value('p12', p12)
         self.emit_value('qj', qj)
         if self.plant.model.has_ports:
@@ -119,7 +136,7 @@ class Plant(TwinNode):
     def on_timer(self) -> None:
         now = self.get_clock().now().nanoseconds
         self._count_overruns(now)
-        self._publish_state()
+        self._publish_state(now)
         try:
             v = self.io.latest
             self._advance(now, self.n_sub, v['cor'], v['fr'], v['psr'])
@@ -143,6 +160,25 @@ class Plant(TwinNode):
                 f'{self.overruns} control periods missed so far: the plant runs slower than its '
                 'clock (the machine cannot keep the timer); simulated time lags',
                 throttle_duration_sec=5.0)
+
+
+def parse_sensors(text: str):
+    """The ``sensors`` parameter: '' (ideal sensors) or a JSON/YAML mapping."""
+    from ..physics.sensors import sensors_from_dict
+    if not text.strip():
+        return None
+    import yaml
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        why = ' '.join(str(exc).split())[:120]
+        raise TwinError(f'parameter sensors: not a YAML mapping ({why})') from None
+    return sensors_from_dict(raw, 'parameter sensors')
+
+
+def sensors_text(sensors) -> str:
+    """The ``sensors`` parameter's value for ``sensors`` (None: '')."""
+    return json.dumps(sensors.to_dict()) if sensors else ''
 
 
 def main(args: Sequence[str] | None = None) -> int:

@@ -18,6 +18,7 @@ import functools
 from ..jitcache import jit
 from .ecu import ecu_current
 from .jack import jack_step
+from .sensors import C_ON, SENSED, sense
 from .servovalve import S_DXJ, S_XJ, S_XS, servovalve_step
 from .signals import NAMES
 from .valve_state import V_FAIL, V_P1, V_P2, V_XJ
@@ -32,6 +33,9 @@ valve_p12_inline = jit(inline='always')(valve_p12.py_func)
 
 # columns of the rows written by run_steps_for's loops
 OUT_COLUMNS = ('t',) + NAMES
+#: with sensors, the rows carry the sensed signals' readings in their own columns and the truth
+#: of each in these, after :data:`OUT_COLUMNS`
+TRUTH_COLUMNS = tuple(f'{s}_true' for s in SENSED)
 TICK_OUT = ('p12', 'qj', 'p1', 'p2')
 
 
@@ -56,9 +60,11 @@ def plant_step(model_id, s, vs, P, cor, fr, psr, integrate):
 
 
 @functools.lru_cache(maxsize=None)
-def run_steps_for(model_id: int):
+def run_steps_for(model_id: int, sensed: bool = False):
     """The step loop of the valve model with registry ``id`` = ``model_id`` (built once per
-    model and process, its machine code loaded from numba's disk cache).
+    model and process, its machine code loaded from numba's disk cache); ``sensed``: the loop
+    with sensors (:mod:`.sensors`), whose ECU reads the measured XJ -- a loop of its own, so
+    that the loop without them is the one it always was (its branches fold away).
 
     Why one loop per model: with the id an argument, the loop called :func:`valve_p12` out of
     line every step (its arguments on the stack, every live register spilled, a reference
@@ -70,7 +76,7 @@ def run_steps_for(model_id: int):
     """
     @jit
     def run_steps(s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
-                  carry, out, out_dt):
+                  carry, out, out_dt, spec, keys, held, sense_every):
         """Run the steps ``i0 .. i0 + len(com) - 1`` of a run of ``n`` steps; called chunk
         after chunk, so that a run's inputs are never held whole. Step ``n`` is the end
         instant, evaluated without integrating so that the last output row holds P12 at the
@@ -82,6 +88,11 @@ def run_steps_for(model_id: int):
         ``out`` (t = row*``out_dt``). ``P_arr`` stacks :meth:`~.params.EhaParams.kernel_array`
         rows, one per parameter segment (faults change parameters mid-run); row k is in force
         from step ``seg_start[k]`` on. ``carry`` = [Cor, segment] is kept between chunks.
+        With sensors: ``spec``, ``keys`` (:meth:`~.sensors.Sensors.table`) and the readings
+        held between samples, ``held`` (kept between chunks), taken on the grid of
+        ``sense_every`` steps (the control period: every sensor's period is a multiple of
+        it); the rows then carry the readings in the sensed signals' columns and the truth in
+        :data:`TRUTH_COLUMNS`. A signal without a sensor reads its truth.
         Returns -1, or the index of the step at which the valve model failed.
         """
         cor = carry[0]
@@ -92,15 +103,29 @@ def run_steps_for(model_id: int):
             while k + 1 < n_seg and i >= seg_start[k + 1]:
                 k += 1
             P = P_arr[k]
-            if ecu_every == 0 or i % ecu_every == 0:
-                cor = ecu_current(com[j], s[S_XJ], P)
             xs = s[S_XS]
             xj = s[S_XJ]
             dxj = s[S_DXJ]
+            on_grid = False
+            if sensed:
+                # the sensors read the state first: the ECU's XJ is the measured one
+                on_grid = i % sense_every == 0
+                if on_grid:
+                    sense(0, xs, i, spec, keys, held)
+                    sense(1, xj, i, spec, keys, held)
+                    sense(2, dxj, i, spec, keys, held)
+                if ecu_every == 0 or i % ecu_every == 0:
+                    cor = ecu_current(com[j], held[1] if spec[1, C_ON] != 0.0 else xj, P)
+            elif ecu_every == 0 or i % ecu_every == 0:
+                cor = ecu_current(com[j], xj, P)
             # plant_step, written out (see the module docstring)
             qj = P.AJ * dxj
             vs[V_XJ] = xj
             p12 = valve_p12_inline(model_id, xs, qj, psr[j] * P.PSR_scale, P, vs)
+            if on_grid:
+                sense(3, p12, i, spec, keys, held)
+                sense(4, vs[V_P1], i, spec, keys, held)
+                sense(5, vs[V_P2], i, spec, keys, held)
             if i < n:
                 jack_step(s, p12, fr[j], P)
                 servovalve_step(s, cor, P)
@@ -120,6 +145,12 @@ def run_steps_for(model_id: int):
                 out[row, 9] = qj
                 out[row, 10] = vs[V_P1]
                 out[row, 11] = vs[V_P2]
+                if sensed:
+                    # the truth beside; the readings where a sensor reads
+                    for m, col in enumerate((5, 6, 7, 8, 10, 11)):
+                        out[row, 12 + m] = out[row, col]
+                        if spec[m, C_ON] != 0.0:
+                            out[row, col] = held[m]
         carry[0] = cor
         carry[1] = k
         return -1

@@ -11,6 +11,8 @@ Schema (unknown keys are an error; times in s, Com in m, FR in N, PSR in Pa)::
     psr: {sine: {offset: 20.0e+6, amplitude: 1.0e+6, frequency: 2.0, phase: 0.0, start: 0.0}}
     params: {CLk: 2.0e-12}                            # parameter overrides (optional)
     windows: {drop: [0.35, 0.45]}                     # named analysis windows (optional)
+    sensors: {seed: 7, xj: {noise: 2.0e-6}}           # the unit's sensors (optional;
+                                                      # physics/sensors.py)
 
 Files and built-in names are read by :mod:`servovalve_twin.config`. A missing signal takes its
 default (Com 0 m, FR 0 N, PSR = 20 MPa), so ``{}`` is a valid
@@ -33,7 +35,8 @@ from .signals import INPUTS
 SIGNALS = INPUTS
 SIGNAL_UNITS = {'com': 'm', 'fr': 'N', 'psr': 'Pa'}
 _DEFAULT_VALUE = {'com': 0.0, 'fr': 0.0, 'psr': 20.0e6}
-_KEYS = {'name', 'description', 'duration', 'params', 'windows', 'faults'} | set(SIGNALS)
+_KEYS = ({'name', 'description', 'duration', 'params', 'windows', 'faults', 'sensors'}
+         | set(SIGNALS))
 _SINE_KEYS = {'offset', 'amplitude', 'frequency', 'phase', 'start'}
 _MAX_DURATION = 3600.0
 #: the supply-return pressure the models accept: PSRN's upper bound
@@ -151,6 +154,7 @@ class Scenario:
     windows: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
     description: str = ''
     faults: tuple[Mapping[str, Any], ...] = ()      # raw fault entries, see physics.faults
+    sensors: Any = None                 # a .sensors.Sensors, or None: ideal sensors
 
     def fault_events(self, nominal) -> list:
         """The scheduled faults resolved against ``nominal`` parameters (sorted by time)."""
@@ -159,6 +163,11 @@ class Scenario:
 
     def without_faults(self) -> 'Scenario':
         return dataclasses.replace(self, faults=())
+
+    def without_sensors(self) -> 'Scenario':
+        """The scenario measured by ideal sensors: what a model fitted to a unit's readings
+        simulates (it must not know the unit's noise realisation)."""
+        return dataclasses.replace(self, sensors=None)
 
     @property
     def duration_ns(self) -> int:
@@ -191,6 +200,8 @@ class Scenario:
             out['windows'] = {k: list(v) for k, v in self.windows.items()}
         if self.faults:
             out['faults'] = [dict(f) for f in self.faults]
+        if self.sensors:
+            out['sensors'] = self.sensors.to_dict()
         return out
 
 
@@ -293,8 +304,13 @@ def scenario_from_dict(raw: Mapping[str, Any], name: str = 'scenario') -> Scenar
     if not isinstance(faults, (list, tuple)):
         raise ScenarioError('scenario.faults: expected a list of {at, fault, severity} or '
                             '{at, param, value} entries')
+    sensors = None
+    if raw.get('sensors') is not None:
+        from .sensors import sensors_from_dict
+        sensors = sensors_from_dict(raw['sensors'])
     scenario = Scenario(name=str(raw.get('name', name)), duration=duration, params=params,
                         windows=windows, description=str(raw.get('description', '')),
+                        sensors=sensors,
                         faults=tuple({str(k): _plain(v) for k, v in f.items()}
                                      if isinstance(f, Mapping) else f for f in faults),
                         **profiles)

@@ -22,8 +22,9 @@ from ..errors import ModelError, ParameterError
 from .ecu import ecu_current_py
 from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams
-from .plant import OUT_COLUMNS, TICK_OUT, run_steps_for, run_tick
+from .plant import OUT_COLUMNS, TICK_OUT, TRUTH_COLUMNS, run_steps_for, run_tick
 from .scenario import Scenario, as_scenario
+from .sensors import N_STATE, SENSED, Sensors, sense_block, sensors_from_dict
 from .servovalve import PLANT_STATE, S_DXJ, S_SIZE, S_XJ, S_XS
 from .signals import COMMON, PORTS
 from .valves import ValveModel, get_valve_model
@@ -82,6 +83,10 @@ class RunResult:
     signals: dict[str, np.ndarray]
     ecu_period: float | None = None
     info: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: the sensors the run was measured with (None: ideal), and the true values of the
+    #: signals they read (``signals`` holds the readings)
+    sensors: Sensors | None = None
+    truth: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.signals[name]
@@ -100,7 +105,9 @@ class RunResult:
 def simulate(valve_model: str, scenario: Scenario | Mapping,
              overrides: Mapping[str, Any] | None = None, *, ecu_period: float | None = None,
              params: EhaParams | None = None,
-             initial: Mapping[str, float] | None = None) -> RunResult:
+             initial: Mapping[str, float] | None = None,
+             sensors: Sensors | Mapping | None = None,
+             sensor_seed: int | None = None) -> RunResult:
     """Run ``scenario`` with ``valve_model``, ROS-free, in one compiled loop.
 
     :param valve_model: a name of :data:`~.valves.VALVE_MODELS`
@@ -111,6 +118,10 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     :param initial: the plant state at t = 0 by name (:data:`~.servovalve.PLANT_STATE`:
         ``xf``, ``dxf``, ``xs``, ``xj``, ``dxj``; the others at rest): a run that continues
         from a recorded instant (a diagnosis over a window); the valve state starts afresh
+    :param sensors: the sensors (:mod:`.sensors`; a mapping of the scenario's ``sensors``
+        schema) instead of the scenario's; ``sensor_seed``: their seed instead of theirs.
+        With sensors the ECU closes its loop on the measured XJ, ``signals`` holds what the
+        sensors read and ``truth`` the true values of the sensed signals.
     :raises TwinError: bad model name, parameter, scenario, period; valve failure
     """
     model = get_valve_model(valve_model)
@@ -123,7 +134,18 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
         raise ParameterError(f'duration {scn.duration} s is not a whole number of DT = {p.DT} s')
     n_rows = n_steps // out_every + 1      # the memory: ~0.2 kB per row, 0.7 GB at 3600 s
     kernels, seg_start = _fault_segments(model, scn, p)
-    out = np.full((n_rows, len(OUT_COLUMNS)), np.nan)
+    sens = scn.sensors if sensors is None else (
+        sensors if isinstance(sensors, Sensors) else sensors_from_dict(sensors))
+    if sens is not None and sensor_seed is not None:
+        sens = sens.with_seed(sensor_seed)
+    if sens != scn.sensors:
+        scn = dataclasses.replace(scn, sensors=sens)     # the result says what measured it
+    # a sensor samples every control period by default: the ECU's, or the output rows' when
+    # the ECU is continuous (its readings are held between them)
+    spec, keys = (sens.table(ecu_every or out_every, p.DT) if sens
+                  else (np.zeros((len(SENSED), 7)), np.zeros(len(SENSED), dtype=np.uint64)))
+    held = np.zeros(len(SENSED))
+    out = np.full((n_rows, len(OUT_COLUMNS) + (len(TRUTH_COLUMNS) if sens else 0)), np.nan)
     s = np.zeros(S_SIZE)
     for name, value in (initial or {}).items():
         if name not in PLANT_STATE:
@@ -138,21 +160,27 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     steps = np.arange(min(CHUNK_STEPS, n_steps + 1), dtype=np.int64)
     t_buf = np.empty_like(steps)
     u_buf = np.empty((3, steps.shape[0]))
-    run_steps = run_steps_for(model.id)
+    run_steps = run_steps_for(model.id, bool(sens))
     for i0 in range(0, n_steps + 1, CHUNK_STEPS):
         m = min(CHUNK_STEPS, n_steps + 1 - i0)
         t_ns = np.add(steps[:m], i0, out=t_buf[:m])
         t_ns *= p.dt_ns
         com, fr, psr = scn.inputs(t_ns, u_buf[:, :m])
         failed = run_steps(s, vs, kernels, seg_start, com, fr, psr, i0, n_steps,
-                           ecu_every, out_every, carry, out, OUTPUT_PERIOD_NS * 1e-9)
+                           ecu_every, out_every, carry, out, OUTPUT_PERIOD_NS * 1e-9,
+                           spec, keys, held, ecu_every or out_every)
         if failed >= 0:
             raise ModelError(f'valve model {model.name} failed to converge at t = '
                              f'{failed * p.DT:.6f} s')
     cols = CSV_COLUMNS + (PORT_COLUMNS if model.has_ports else ())
     signals = {c: out[:, OUT_COLUMNS.index(c)].copy() for c in cols}
+    truth = {}
+    if sens:
+        truth = {c: out[:, len(OUT_COLUMNS) + SENSED.index(c)].copy() for c in sens.names
+                 if c in cols}
     return RunResult(valve_model=model.name, scenario=scn, params=p, signals=signals,
-                     ecu_period=ecu_period, info=dict(model.run_totals(vs), steps=n_steps))
+                     ecu_period=ecu_period, info=dict(model.run_totals(vs), steps=n_steps),
+                     sensors=sens or None, truth=truth)
 
 
 def _fault_segments(model: ValveModel, scn: Scenario, p: EhaParams
@@ -193,6 +221,34 @@ class EhaPlant:
         self.s = np.zeros(S_SIZE)
         self.vs = self.model.initial_state(self.params)
         self.last = np.full(len(TICK_OUT), np.nan)
+        self.sensors: Sensors | None = None
+        self.measured = np.zeros(len(SENSED))     # the sensors' readings, :data:`SENSED` order
+        self._spec = np.zeros((len(SENSED), 7))   # no sensors: every reading is the truth
+        self._keys = np.zeros(len(SENSED), dtype=np.uint64)
+
+    def set_sensors(self, sensors: Sensors | None, control_period: float) -> None:
+        """Measure with ``sensors`` (None: ideal), sampled on the grid of ``control_period``
+        (s): the readings of :meth:`sense_state` and :meth:`sense_valve` are those
+        :func:`simulate` takes with ``ecu_period`` = ``control_period``."""
+        self.sensors = sensors or None
+        if sensors:
+            self._spec, self._keys = sensors.table(
+                steps_per(control_period, self.params, 'the control period'), self.params.DT)
+        else:
+            self._spec = np.zeros((len(SENSED), 7))
+
+    def sense_state(self, t_ns: int) -> np.ndarray:
+        """Read XS, XJ, DXJ at ``t_ns`` (the start of a control period) into
+        :attr:`measured`; returns the readings of the state signals."""
+        sense_block(0, self.s[[S_XS, S_XJ, S_DXJ]], t_ns // self.params.dt_ns, self._spec,
+                    self._keys, self.measured)
+        return self.measured[:N_STATE]
+
+    def sense_valve(self, t_ns: int) -> np.ndarray:
+        """Read P12, P1, P2 of :attr:`last` (the valve at ``t_ns``, the tick's start)."""
+        sense_block(N_STATE, self.last[[0, 2, 3]], t_ns // self.params.dt_ns, self._spec,
+                    self._keys, self.measured)
+        return self.measured[N_STATE:]
 
     @property
     def xs(self) -> float:

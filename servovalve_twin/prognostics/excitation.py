@@ -86,7 +86,7 @@ class Excitation:
         if isinstance(scenario, str):
             from ..config import load_scenario
             scenario = load_scenario(scenario)
-        self.scenario = as_scenario(scenario).without_faults()
+        self.scenario = as_scenario(scenario).without_faults().without_sensors()
         self.design, self.model, self.period = design, model, control_period
         self.healthy = self._run(design)
         mismatch = _vector(simulate(REFERENCE_PLANT, self.scenario, params=design,

@@ -67,7 +67,10 @@ def run_case(case: Case, traces: bool = True) -> dict[str, Any]:
             {'at': case.onset, 'fault': case.fault, 'severity': case.severity}]
     actual = make_params(dict(scn.params) | dict(case.params))
     design = make_params(dict(scn.params) | dict(case.design))
-    run = simulate(case.plant_model, raw, params=actual, ecu_period=case.ecu_period)
+    # a scenario's sensors: each run is a unit of its own, with its own noise realisation
+    seed = None if scn.sensors is None else (scn.sensors.seed + case.run_id) % 2 ** 63
+    run = simulate(case.plant_model, raw, params=actual, ecu_period=case.ecu_period,
+                   sensor_seed=seed)
     features, trace_arrays, alarm, warn = _algorithm_case(case, run, design)
     before = alarm is not None and alarm < case.onset
     row: dict[str, Any] = dict(

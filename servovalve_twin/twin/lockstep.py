@@ -58,7 +58,7 @@ from ..nodes.inputs import LocalBus
 from ..nodes.topics import TOPICS, type_name
 from ..nodes.ecu import Ecu
 from ..nodes.monitor import MONITOR_TOPICS, Monitor
-from ..nodes.plant import Plant
+from ..nodes.plant import Plant, sensors_text
 from ..nodes.sources import CommandGenerator, LoadSupply
 from ..physics.params import EhaParams
 from ..physics.scenario import Scenario
@@ -201,7 +201,8 @@ class Twin:
                                       parameter_overrides=[sim, period, scn])
         self.ecu = Ecu(params=self.params, **kw, parameter_overrides=physical(Ecu))
         self.plant = Plant(params=self.params, **kw, parameter_overrides=physical(Plant) + [
-            Parameter('valve_model', Parameter.Type.STRING, self.valve_model)])
+            Parameter('valve_model', Parameter.Type.STRING, self.valve_model),
+            Parameter('sensors', Parameter.Type.STRING, sensors_text(self.scenario.sensors))])
         self.clock = Node('twin_clock', context=self.context, parameter_overrides=[sim],
                           **({'namespace': kw['namespace']} if namespace else {}))
         #: where the actuator's topics live: '' or '/left' (an explicit namespace or a __ns

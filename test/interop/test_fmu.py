@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from fmpy import read_model_description, simulate_fmu
 
 from servovalve_twin.cli import main
@@ -60,6 +61,39 @@ def test_fmu_parameters_reach_the_physics(fmus):
     res = _run_fmu(fmus / 'SQ.fmu', r, start_values={'CLk': clk})
     assert np.array_equal(res['xj'], r['xj'])
     assert not np.array_equal(res['xj'], simulate('SQ', PAPER, ecu_period=1e-3)['xj'])
+
+
+SENSORS = {'seed': 4, 'xj': {'noise': 2.0e-5, 'quantisation': 1.0e-6},
+           'xs': {'bias': 1.0e-6, 'drift': 1.0e-5}, 'p12': {'noise': 1.0e5, 'period': 0.002}}
+
+
+def test_an_fmu_with_sensors_is_simulate_with_them(tmp_path):
+    """An FMU built with --sensors, stepped 3 ms at a time (so that a 2 ms P12 sample falls
+    inside a step), outputs simulate()'s readings at each step's end, and its ECU closes the
+    loop on them (the true XJ would differ); its sensor_seed parameter is simulate's
+    sensor_seed."""
+    (tmp_path / 's.yaml').write_text(yaml.safe_dump(SENSORS))
+    fmu = tmp_path / 'SQs.fmu'
+    assert main(['fmu', '--valve-model', 'SQ', '--sensors', str(tmp_path / 's.yaml'),
+                 str(fmu)]) == 0
+    for seed in (None, 11):
+        r = simulate('SQ', dict(PAPER.to_dict(), sensors=SENSORS),
+                     ecu_period=1e-3, sensor_seed=seed)
+        inputs = np.array(list(zip(r['t'], r['com'], r['fr'], r['psr'])),
+                          dtype=[('time', float), ('com', float), ('fr', float),
+                                 ('psr', float)])
+        res = simulate_fmu(str(fmu), start_time=0.0, stop_time=0.999, step_size=3e-3,
+                           output_interval=3e-3, input=inputs, output=OUTPUTS,
+                           start_values={} if seed is None else {'sensor_seed': seed})
+        rows = np.rint(res['time'] * 1000).astype(int)
+        assert set(rows.tolist()) >= set(range(0, 1000, 3))    # and the input events
+        for k in ('xs', 'xj', 'dxj'):
+            assert np.array_equal(res[k], r[k][rows]), (seed, k)
+        # P12 wherever the supply did not just change (as without sensors)
+        held = r['psr'][rows] == r['psr'][np.maximum(rows - 1, 0)]
+        assert (~held).sum() == 2
+        assert np.array_equal(res['p12'][held], r['p12'][rows][held]), seed
+        assert not np.array_equal(res['xj'], r.truth['xj'][rows])
 
 
 def test_bad_fmu_input_is_one_line_and_exit_2(fmus, tmp_path, capsys):

@@ -392,3 +392,15 @@ def test_a_sweep_stopped_by_a_signal_keeps_its_finished_runs(tmp_path, how):
         ids = [int(r['run_id']) for r in csv.DictReader(fh)]
     assert 7 <= len(ids) < 5000 and ids == sorted(set(ids))
     assert f'after {len(ids)} of 5000 runs' in err
+
+
+def test_a_sweep_gives_each_run_its_own_sensor_noise():
+    """A scenario with sensors: two otherwise identical nominal runs of a sweep are two units
+    with their own noise realisation (seed + run id), so the monitor's residuals differ; the
+    same runs without sensors are identical."""
+    from cases import short
+    noisy = dict(short(), sensors={'seed': 3, 'xj': {'noise': 2.0e-5}})
+    for scenario, differ in ((noisy, True), (short(), False)):
+        cases = make_cases(plant_model='C2', scenario=scenario, nominal_runs=2)
+        a, b = (run_case(c)['traces']['res_xj'] for c in cases)
+        assert (not np.array_equal(a, b)) == differ

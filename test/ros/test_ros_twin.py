@@ -106,6 +106,35 @@ def test_twin_equals_simulate_with_the_same_sampled_ecu(ros_context):
         assert all(v == 0.0 for v in worst.values())      # one code path: bit-identical
 
 
+#: sensors on every sensed signal, P12 and P1 sampled slower than the control period
+SENSORS = {'seed': 5, 'xs': {'noise': 1.0e-7}, 'xj': {'noise': 2.0e-5, 'quantisation': 1.0e-6},
+           'dxj': {'bias': 1.0e-3, 'drift': 2.0e-2}, 'p12': {'noise': 1.0e5, 'period': 0.003},
+           'p1': {'noise': 5.0e4, 'period': 0.002}, 'p2': {'quantisation': 1.0e4}}
+
+
+def test_twin_with_sensors_equals_simulate_and_records_them(ros_context, tmp_path):
+    """With sensors the plant node publishes what they read and the ECU node closes the loop
+    on the published XJ: every recorded signal equals simulate()'s readings bit for bit
+    (a plant that published the truth, or sampled P12 every tick, would differ); the bag's
+    provenance holds the sensors and their seed; the joint state carries the readings."""
+    from servovalve_twin.bag.reader import read_bag
+    scn = dict(SHORT, sensors=SENSORS)
+    result = run_twin('HD', scn, context=ros_context, handle_signals=False, bag=tmp_path / 'b')
+    ref = simulate('HD', scn, ecu_period=1e-3)
+    for c in ref.columns:
+        assert np.array_equal(result.signals[c], ref[c]), c
+    assert not np.array_equal(ref['xj'], ref.truth['xj'])
+    run = read_bag(tmp_path / 'b')
+    assert run.scenario()['sensors'] == SENSORS
+    from rosbags.highlevel import AnyReader
+    with AnyReader([tmp_path / 'b']) as reader:
+        joint = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(
+            [c for c in reader.connections if c.topic == '/joint_states'])]
+    assert len(joint) == len(ref['t'])
+    assert [m.position[0] for m in joint] == ref['xj'].tolist()
+    assert [m.effort[0] for m in joint] == (ref.params.AJ * ref['p12']).tolist()
+
+
 def test_two_runs_identical(ros_context, tmp_path):
     from servovalve_twin.bag.reader import read_bag
     runs = [run_twin('HD', SHORT, context=ros_context, handle_signals=False,
