@@ -119,8 +119,10 @@ def _verdict_line(d) -> str:
         f'{f}, severity {s:.4g} ({conf} [{i[0]:.4g}, {i[1]:.4g}])'
         for f, s, i in zip(b.faults, b.severities, b.intervals))
     if d.onset:
-        what += (f', from t = {d.onset["t"]:.3f} s ([{d.onset["interval"][0]:.3f}, '
-                 f'{d.onset["interval"][1]:.3f}])')
+        lo, hi = d.onset['interval']
+        what += (f', from t = {d.onset["t"]:.3f} s ([{lo:.3f}, {hi:.3f}])'
+                 if d.onset.get('identifiable', True) else
+                 f', begun between {lo:.3f} and {hi:.3f} s (the run cannot tell when)')
     return what
 
 

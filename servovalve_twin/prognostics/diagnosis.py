@@ -174,6 +174,11 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                           f'{best.fault} alone by {best.score - second.score:.0f} in the '
                           f'information criterion (more than {SECOND_FAULT_EVIDENCE:g}): '
                           'outside the single-fault hypotheses; diagnose with --pairs')
+    if onset_fit is not None and not onset_fit['identifiable']:
+        lo, hi = onset_fit['interval']
+        d.warnings.append(f'onset not identifiable on this run: {onset_fit["fault"]} began '
+                          f'between {lo:.3f} and {hi:.3f} s (the fit does not change within '
+                          'it: the flight did not excite the fault there)')
     if any(bounds):
         d.warnings.append('not identifiable on this run: ' + '; '.join(b for b in bounds if b)
                           + ' (the fit does not change beyond it: only a flight that excites '

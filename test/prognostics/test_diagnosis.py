@@ -416,6 +416,39 @@ def test_a_fault_that_starts_mid_flight_is_located(fault, q, at):
 
 
 @pytest.mark.slow
+def test_an_onset_in_a_valley_narrower_than_the_grid_is_found():
+    """A null bias of 0.6 of its alarm value from 0.3 s: the onset's cost has a valley ~40 ms
+    wide at 0.30 s and a shallower minimum at 0.44 s; the coarse grid alone refined the wrong
+    one (0.436 s, its interval [0.415, 0.478] excluding the truth: measured). The change
+    point of the from-start fits brings the search to the valley."""
+    sig, truth, _ = calibration.unit_signals('null_bias', 0.6, 'paper', 16666714, spread=1.5,
+                                             onset=0.3)
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
+                 scenario='paper')
+    assert d.best.fault == 'null_bias' and d.onset['identifiable']
+    assert abs(d.onset['t'] - 0.3) <= 0.05
+    assert d.onset['interval'][0] <= 0.3 <= d.onset['interval'][1]
+
+
+@pytest.mark.slow
+def test_an_onset_the_flight_cannot_place_is_stated_as_such():
+    """A first-stage flow loss from 0.6 s, while the jack holds still until the 0.75 s
+    command: the run cannot tell when it began between the supply's recovery and that
+    command. The onset comes back `identifiable: false` with an interval wider than 100 ms
+    that holds the truth, and a warning says so; the severity is still sized."""
+    sig, truth, _ = calibration.unit_signals('first_stage_flow_loss', 0.6, 'paper', 16666719,
+                                             spread=1.5, onset=0.6)
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
+                 scenario='paper')
+    lo, hi = d.onset['interval']
+    assert d.best.fault == 'first_stage_flow_loss' and not d.onset['identifiable']
+    assert hi - lo > 0.1 and lo <= 0.6 <= hi
+    assert any(w.startswith('onset not identifiable') for w in d.warnings)
+    assert d.best.severity == pytest.approx(truth, rel=0.15)
+    assert d.to_json()['onset']['identifiable'] is False
+
+
+@pytest.mark.slow
 def test_an_onset_of_a_fault_too_small_to_report_is_no_verdict():
     """A static friction of 6 x from 0.6 s on the paper's flight (below its limit there): the
     best change point is a dynamic friction of 1.5 x from a wrong instant, below the verdict
