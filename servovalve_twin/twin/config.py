@@ -37,6 +37,12 @@ def _count(name: str, v: Any) -> int:
     return v
 
 
+def _seed(name: str, v: Any) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < 2 ** 63:
+        raise TwinError(f'{name} = {v!r}: expected an integer in [0, 2**63 - 1]')
+    return v
+
+
 def _text(name: str, v: Any) -> str:
     if not isinstance(v, str):
         raise TwinError(f'{name} = {v!r}: expected a string')
@@ -102,6 +108,9 @@ class TwinConfig:
     followers: int = option(0, 'the clock owner starts once N twins following its /clock '
                             '(other namespaces) are on the graph (default 0: at once)', _count,
                             metavar='N')
+    sensor_seed: int | None = option(
+        None, "the noise realisation of the scenario's sensors (default their seed; the bag "
+        'records the one used)', _seed, metavar='N', cli=dict(type=int))
     bag: str = option('', 'bag directory (default bags/<scenario>_<model>_<UTC time>)', _text,
                       metavar='DIR')
     record: bool = option(True, 'record a bag (default true)', _flag,
@@ -194,7 +203,8 @@ class TwinConfig:
                     real_time_factor=self.real_time_factor, namespace=self.namespace or None,
                     clock=self.clock, followers=self.followers, bag=bag,
                     overwrite=self.overwrite, monitor=self.monitor or None,
-                    algorithms=self.algorithms(), foxglove=self.foxglove)
+                    algorithms=self.algorithms(), foxglove=self.foxglove,
+                    sensor_seed=self.sensor_seed)
 
     def bag_dir(self) -> str | None:
         """Where it records: ``bag``, or bags/<scenario>_<model>_<UTC time>; None without a

@@ -32,6 +32,8 @@ loop at a tick boundary (``EventsExecutor`` ignores both) and the bag is finaliz
 
 from __future__ import annotations
 
+import dataclasses
+
 import os
 import signal
 import time
@@ -103,6 +105,8 @@ class Twin:
     :param followers: the clock owner starts its run once this many twins that follow its
         ``/clock`` (other namespaces) are on the graph -- discovery takes 0.4-1.2 s here, and
         a follower that joins late misses no tick but the simulated time it waited for
+    :param sensor_seed: the noise realisation of the scenario's sensors instead of the seed
+        it declares (the scenario then carries it: the plant node and the bag's provenance)
     """
 
     def __init__(self, valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
@@ -116,7 +120,7 @@ class Twin:
                  monitor: str | None = None, algorithms: Sequence[Any] = (),
                  foxglove: int | None = None, namespace: str | None = None,
                  clock: str = 'own', real_time_factor: float | None = None,
-                 followers: int = 0):
+                 followers: int = 0, sensor_seed: int | None = None):
         get_valve_model(valve_model)
         check_clock_options(clock, real_time_factor, followers)
         if executor not in EXECUTORS:
@@ -125,6 +129,13 @@ class Twin:
         if monitor is not None:
             get_monitor_model(monitor)
         self.scenario = load_scenario(scenario)
+        if sensor_seed is not None:
+            # the plant node and the bag's provenance take the sensors from the scenario
+            if not self.scenario.sensors:
+                raise TwinError(f'sensor_seed: the scenario {self.scenario.name!r} declares no '
+                                'sensors (add a sensors: section, physics/sensors.py)')
+            self.scenario = dataclasses.replace(
+                self.scenario, sensors=self.scenario.sensors.with_seed(sensor_seed))
         self.params = effective_params(self.scenario, overrides, base_params)
         self.valve_model = valve_model
         self.control_period = control_period

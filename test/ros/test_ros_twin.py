@@ -133,6 +133,13 @@ def test_twin_with_sensors_equals_simulate_and_records_them(ros_context, tmp_pat
     assert len(joint) == len(ref['t'])
     assert [m.position[0] for m in joint] == ref['xj'].tolist()
     assert [m.effort[0] for m in joint] == (ref.params.AJ * ref['p12']).tolist()
+    # another realisation: the twin's sensor_seed is simulate's, and the bag records it
+    other = run_twin('HD', scn, context=ros_context, handle_signals=False, sensor_seed=8,
+                     bag=tmp_path / 'c')
+    assert np.array_equal(other.signals['xj'], simulate('HD', scn, ecu_period=1e-3,
+                                                        sensor_seed=8)['xj'])
+    assert not np.array_equal(other.signals['xj'], result.signals['xj'])
+    assert read_bag(tmp_path / 'c').scenario()['sensors']['seed'] == 8
 
 
 def test_two_runs_identical(ros_context, tmp_path):
