@@ -17,11 +17,11 @@ from ..jitcache import jit
 from .servovalve import S_DXJ, S_XJ, end_of_travel
 
 
-@jit
-def jack_step(s, p12, fr, P):
-    """Advance XJ, DXJ by one DT under P12 [Pa] and the external load FR [N] (> 0 opposes +XJ)."""
+@jit(inline='always')
+def jack_advance(x, v, p12, fr, P):
+    """XJ, DXJ one DT later under P12 [Pa] and the external load FR [N] (> 0 opposes +XJ),
+    from XJ = ``x``, DXJ = ``v`` (the step loops keep them in registers)."""
     dt = P.DT
-    v = s[S_DXJ]
     fa = P.AJ * p12 - fr - P.CJ * v
     if v == 0.0:
         if abs(fa) <= P.FSJ:
@@ -34,6 +34,10 @@ def jack_step(s, p12, fr, P):
         v_new = v + dt * (fa - ff) / P.M
         if v_new * v < 0.0:
             v_new = 0.0
-    x, v_new = end_of_travel(s[S_XJ] + dt * v_new, v_new, P.XJM)
-    s[S_XJ] = x
-    s[S_DXJ] = v_new
+    return end_of_travel(x + dt * v_new, v_new, P.XJM)
+
+
+@jit
+def jack_step(s, p12, fr, P):
+    """Advance XJ, DXJ in the plant state ``s`` by one DT (:func:`jack_advance`)."""
+    s[S_XJ], s[S_DXJ] = jack_advance(s[S_XJ], s[S_DXJ], p12, fr, P)

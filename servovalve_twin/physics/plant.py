@@ -17,9 +17,10 @@ import functools
 
 from ..jitcache import jit
 from .ecu import ecu_current
-from .jack import jack_step
+from .jack import jack_advance, jack_step
 from .sensors import C_ON, SENSED, sense
-from .servovalve import S_DXJ, S_XJ, S_XS, servovalve_step
+from .servovalve import (S_DXF, S_DXJ, S_XF, S_XJ, S_XS, servovalve_advance,
+                         servovalve_step)
 from .signals import NAMES
 from .valve_state import V_FAIL, V_P1, V_P2, V_XJ
 from .valves import valve_p12
@@ -98,14 +99,13 @@ def run_steps_for(model_id: int, sensed: bool = False):
         cor = carry[0]
         k = int(carry[1])
         n_seg = seg_start.shape[0]
+        # the plant state in locals for the chunk (registers), back into ``s`` at its end
+        xf, dxf, xs, xj, dxj = s[S_XF], s[S_DXF], s[S_XS], s[S_XJ], s[S_DXJ]
         for j in range(com.shape[0]):
             i = i0 + j
             while k + 1 < n_seg and i >= seg_start[k + 1]:
                 k += 1
             P = P_arr[k]
-            xs = s[S_XS]
-            xj = s[S_XJ]
-            dxj = s[S_DXJ]
             on_grid = False
             if sensed:
                 # the sensors read the state first: the ECU's XJ is the measured one
@@ -126,10 +126,13 @@ def run_steps_for(model_id: int, sensed: bool = False):
                 sense(3, p12, i, spec, keys, held)
                 sense(4, vs[V_P1], i, spec, keys, held)
                 sense(5, vs[V_P2], i, spec, keys, held)
+            # the row's values are those at the step's start: kept before integrating
+            xs0, xj0, dxj0 = xs, xj, dxj
             if i < n:
-                jack_step(s, p12, fr[j], P)
-                servovalve_step(s, cor, P)
+                xj, dxj = jack_advance(xj, dxj, p12, fr[j], P)
+                xf, dxf, xs = servovalve_advance(xf, dxf, xs, cor, P)
             if vs[V_FAIL] != 0.0:
+                s[S_XF], s[S_DXF], s[S_XS], s[S_XJ], s[S_DXJ] = xf, dxf, xs, xj, dxj
                 return i
             if i % out_every == 0:
                 row = i // out_every
@@ -138,9 +141,9 @@ def run_steps_for(model_id: int, sensed: bool = False):
                 out[row, 2] = fr[j]
                 out[row, 3] = psr[j]
                 out[row, 4] = cor
-                out[row, 5] = xs
-                out[row, 6] = xj
-                out[row, 7] = dxj
+                out[row, 5] = xs0
+                out[row, 6] = xj0
+                out[row, 7] = dxj0
                 out[row, 8] = p12
                 out[row, 9] = qj
                 out[row, 10] = vs[V_P1]
@@ -151,6 +154,7 @@ def run_steps_for(model_id: int, sensed: bool = False):
                         out[row, 12 + m] = out[row, col]
                         if spec[m, C_ON] != 0.0:
                             out[row, col] = held[m]
+        s[S_XF], s[S_DXF], s[S_XS], s[S_XJ], s[S_DXJ] = xf, dxf, xs, xj, dxj
         carry[0] = cor
         carry[1] = k
         return -1

@@ -30,14 +30,12 @@ def end_of_travel(x, v, lim):
     return x, v
 
 
-@jit
-def servovalve_step(s, cor, P):
-    """Advance flapper and spool by one DT (semi-implicit Euler: velocity first, then position),
-    both stages stopped at their ends of travel (:func:`end_of_travel`)."""
+@jit(inline='always')
+def servovalve_advance(xf, dxf, xs, cor, P):
+    """XF, DXF, XS one DT later under the current ``cor`` (semi-implicit Euler: velocity
+    first, then position), both stages stopped at their ends of travel
+    (:func:`end_of_travel`)."""
     dt = P.DT
-    xf = s[S_XF]
-    dxf = s[S_DXF]
-    xs = s[S_XS]
     force = P.GM * (cor + P.CorB) - P.KFB * (xs + xf) - P.CF * dxf - P.KF * xf
     dxf += dt * force / P.MF
     xf, dxf = end_of_travel(xf + dt * dxf, dxf, P.XFM)
@@ -46,6 +44,11 @@ def servovalve_step(s, cor, P):
         xs = P.XSM
     elif xs < -P.XSM:
         xs = -P.XSM
-    s[S_XF] = xf
-    s[S_DXF] = dxf
-    s[S_XS] = xs
+    return xf, dxf, xs
+
+
+@jit
+def servovalve_step(s, cor, P):
+    """Advance flapper and spool in the plant state ``s`` by one DT
+    (:func:`servovalve_advance`)."""
+    s[S_XF], s[S_DXF], s[S_XS] = servovalve_advance(s[S_XF], s[S_DXF], s[S_XS], cor, P)
