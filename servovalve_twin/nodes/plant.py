@@ -3,11 +3,10 @@ the physics layer's :class:`~servovalve_twin.physics.simulate.EhaPlant`."""
 
 from __future__ import annotations
 
+import json
 from typing import Any, Sequence
 
 from rcl_interfaces.msg import ParameterDescriptor
-
-import json
 
 from ..bag.cdr import encode_jack_state
 from ..errors import ModelError, TwinError

@@ -27,8 +27,9 @@ ONSET_STARTS = 5
 #: 0.478 put the refinement there: measured)
 AROUND_CHANGE = (-0.02, 0.0, 0.02)
 #: an onset is stated as pinned when its interval is at most this wide [s] (+-50 ms); wider,
-#: the run does not show when the fault began (a gain loss while the jack holds still shows
-#: only at the next command): ``identifiable`` is then false and the interval is the answer
+#: the run does not show when the fault began (a first-stage flow loss while the jack holds
+#: still shows only at the next command): ``identifiable`` is then false and the interval is
+#: the answer
 ONSET_PINNED = 0.1
 
 
