@@ -72,6 +72,9 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
                  window=window, free=free, bootstrap=bootstrap, pairs=pairs,
                  model_form=run.valve_model != model, onset=onset,
                  scenario=calibration_scenario(run.provenance))
+    if run.provenance and run.provenance.scenario is not None:
+        from ..prognostics.calibration import sensor_warnings
+        d.warnings.extend(sensor_warnings(run.provenance.scenario_object().sensors, period))
     if not run.provenance:
         assumed = ('the parameters given with --param and the defaults for the rest'
                    if nominal else 'the design parameters (the defaults)')

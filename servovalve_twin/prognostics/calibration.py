@@ -208,6 +208,33 @@ def fit_calibration(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def sensor_warnings(sensors: Any, control_period: float) -> list[str]:
+    """What a run's recorded sensors (:class:`..physics.sensors.Sensors`, a bag's provenance)
+    put outside this calibration's domain -- noise beyond 2 x :data:`NOISE` on a compared
+    signal, a bias or drift (a sensor fault the hypotheses do not include: it reads as an
+    actuator's), a quantisation step above the documented noise, a sample period longer than
+    the control period -- one warning line each."""
+    from ..physics.signals import MEASURED
+    out = []
+    for name, spec in (sensors.specs if sensors else ()):
+        if name not in MEASURED:
+            continue
+        ratio = spec.noise / NOISE[name]
+        if ratio > 2.0:
+            out.append(f'the {name} sensor\'s noise is {ratio:.3g} x the documented level; the '
+                       'intervals and the goodness of fit are calibrated for 0.5-2 x')
+        if spec.bias or spec.drift:
+            out.append(f'the {name} sensor has a bias or drift: a sensor fault, which no '
+                       'hypothesis includes, reads as a fault of the actuator')
+        if spec.quantisation > NOISE[name]:
+            out.append(f'the {name} sensor is quantised in steps of {spec.quantisation:g}, '
+                       f'coarser than the documented noise ({NOISE[name]:g})')
+        if spec.period is not None and spec.period > control_period * (1 + 1e-9):
+            out.append(f'the {name} sensor samples every {spec.period:g} s, slower than the '
+                       f'control period ({control_period:g} s): the fit compares held readings')
+    return out
+
+
 def fault_calibration(cal: Mapping[str, Any], fault: str, scenario: str | None = None
                       ) -> dict[str, Any] | None:
     """A fault's calibration entry: the flight's own bias where the calibration has one (a
@@ -250,4 +277,4 @@ def gof_p_value(cal: Mapping[str, Any], rms: float) -> float:
 
 
 __all__ = ['calibration_jobs', 'fit_calibration', 'fault_calibration', 'bias_at', 'unit_signals',
-           'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at', 'to_g', 'from_g']
+           'sensor_warnings', 'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at', 'to_g', 'from_g']

@@ -482,3 +482,19 @@ def test_an_hd_unit_read_by_noisy_sensors_in_its_loop_is_diagnosed():
     assert d.best.severity == pytest.approx(10.0, rel=0.10)
     lo, hi = d.best.interval
     assert lo <= 10.0 <= hi
+
+
+def test_a_bag_read_by_sensors_outside_the_calibration_says_so(ros_context, tmp_path):
+    """A twin run whose XJ sensor is 5 x the documented noise and whose DXJ sensor is biased:
+    `diagnose` takes the sensors from the bag's provenance and names both departures from
+    the domain its confidence was calibrated on, in the JSON's warnings."""
+    from servovalve_twin.twin import run_twin
+    scn = dict(PAPER, sensors={'seed': 2, 'xj': {'noise': 5.0e-5}, 'dxj': {'bias': 1.0e-3}})
+    run_twin('HD', scn, bag=tmp_path / 'b', context=ros_context, handle_signals=False,
+             keep_values=False)
+    out = tmp_path / 'd.json'
+    assert main(['diagnose', str(tmp_path / 'b'), '--faults', 'leakage_growth', '--json',
+                 str(out)]) == 0
+    warnings = json.loads(out.read_text())['warnings']
+    assert any("xj sensor's noise is 5 x" in w for w in warnings), warnings
+    assert any(w.startswith('the dxj sensor has a bias or drift') for w in warnings), warnings
