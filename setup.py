@@ -24,7 +24,7 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'zstandard', 'lz4',
-                      'matplotlib', 'tqdm', 'pyarrow', 'scipy'],
+                      'matplotlib', 'tqdm', 'pyarrow', 'scipy>=1.16'],
     # 'test': what the suite needs beyond the package (colcon test runs pytest when it is here)
     extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]'],
                     # servovalve_twin.progpy: the EHA as a NASA progpy PrognosticsModel

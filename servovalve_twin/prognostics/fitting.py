@@ -106,6 +106,36 @@ class Problem:
                 self._runs[key] = None
         return self._runs[key]
 
+    def run_many(self, runs: Sequence[tuple[EhaParams, tuple]]) -> None:
+        """Run the (parameters, events) of ``runs`` not run yet as one fleet
+        (:func:`~..physics.fleet.simulate_many`): :meth:`run` then finds each, the rows it
+        would have run alone (bit for bit)."""
+        todo = list(dict.fromkeys(k for k in runs if k not in self._runs))
+        if len(todo) < 2:
+            for params, events in todo:
+                self.run(params, events)
+            return
+        from ..physics.fleet import simulate_many
+        self.evaluations += len(todo)
+        faults = [tuple(dict(at=at - self.t_start, fault=f, severity=sev)
+                        for at, f, sev in events) for _, events in todo]
+        got = simulate_many(self.model, self.scenario, [p for p, _ in todo],
+                            ecu_period=self.control_period, initial=self.initial,
+                            faults=faults, failed='none')
+        for key, r in zip(todo, got):
+            self._runs[key] = None if r is None else {s: r[s][self.model_rows]
+                                                      for s in SIGNALS}
+
+    def fleet_map(self, to_run):
+        """A map for scipy's finite differences (``least_squares(workers=...)``): the points
+        it asks for, turned into runs by ``to_run(x)``, are run as one fleet first; then the
+        residuals are taken point by point as scipy would -- the same Jacobian, faster."""
+        def mapper(func, xs):
+            xs = list(xs)
+            self.run_many([to_run(x) for x in xs])
+            return [func(x) for x in xs]
+        return mapper
+
     def residuals(self, fitted: dict[str, np.ndarray] | None,
                   recorded: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
         recorded = self.recorded if recorded is None else recorded
@@ -148,10 +178,12 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
     lo = [f.lo for f in specs] + [FREE_BOUNDS[0]] * len(free)
     hi = [f.hi for f in specs] + [FREE_BOUNDS[1]] * len(free)
 
-    def fun(x):
+    def to_run(x):
         fr = {k: float(v) for k, v in zip(free, x[nf:])}
-        return problem.residuals(problem.run(problem.params(faults, [float(v) for v in x[:nf]],
-                                                            fr)), recorded)
+        return problem.params(faults, [float(v) for v in x[:nf]], fr), ()
+
+    def fun(x):
+        return problem.residuals(problem.run(*to_run(x)), recorded)
 
     if not lo:                                   # healthy, nothing free: no fit to make
         return np.zeros(0), fun(np.zeros(0)), np.zeros((len(problem.rows) * 3, 0))
@@ -161,13 +193,15 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
             [FAULTS[f].healthy for f in faults] + design]
     starts = [np.clip(np.asarray(x, dtype=float), lo, hi) for x in starts]
     if len(starts) > 1:
+        problem.run_many([to_run(x) for x in starts])
         costs = [float(np.sum(fun(x) ** 2)) for x in starts]
         x0 = starts[int(np.argmin(costs))]
     else:
         x0 = starts[0]
     scale = [(h - l) / 10.0 for l, h in zip(lo, hi)]
     sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-3,
-                        method='trf', xtol=1e-6, ftol=1e-8, max_nfev=60 * max(1, nf))
+                        method='trf', xtol=1e-6, ftol=1e-8, max_nfev=60 * max(1, nf),
+                        workers=problem.fleet_map(to_run))
     return sol.x, sol.fun, sol.jac
 
 

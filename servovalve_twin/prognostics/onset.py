@@ -69,6 +69,8 @@ class OnsetProfile:
             # 0.3, 2.7e6 at 0.4), and from the from-start fit (near 0) the solver stalled
             starts = [min(max(float(self.cand.severity), spec.lo), spec.hi)] + start_grid(
                 self.fault, ONSET_STARTS)
+            self.problem.run_many([(self.nominal, ((tau, self.fault, float(v)),))
+                                   for v in starts])
             x0 = min(starts, key=lambda v: float(np.sum(fun([v]) ** 2)))
             sol = least_squares(fun, [x0], bounds=([spec.lo], [spec.hi]),
                                 x_scale=[(spec.hi - spec.lo) / 10.0], diff_step=1e-3,

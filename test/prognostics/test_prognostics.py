@@ -368,10 +368,13 @@ def test_a_sweep_stopped_by_a_signal_keeps_its_finished_runs(tmp_path, how):
     import sys
     import time
     out = tmp_path / 's'
+    # Ctrl-C's disposition as a terminal gives it: a shell's background job (`cmd &`, as a
+    # CI script may start the suite) inherits SIGINT ignored, and Python then keeps it so
     proc = subprocess.Popen([sys.executable, '-m', 'servovalve_twin.cli', 'sweep', '--fault',
                              'leakage_growth:5', '--repeats', '5000', '--nominal', '0',
                              '--workers', '2', '--out', str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 300
         while not (out / 'dataset.csv').exists() or \
