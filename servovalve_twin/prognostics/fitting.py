@@ -108,10 +108,12 @@ class Problem:
 
     def run_many(self, runs: Sequence[tuple[EhaParams, tuple]]) -> None:
         """Run the (parameters, events) of ``runs`` not run yet as one fleet
-        (:func:`~..physics.fleet.simulate_many`): :meth:`run` then finds each, the rows it
+        (:func:`~..physics.fleet.simulate_many`) where the model runs faster so (its registry
+        entry's ``fleet_pays``), else one by one: :meth:`run` then finds each, the rows it
         would have run alone (bit for bit)."""
+        from ..physics.valves import get_valve_model
         todo = list(dict.fromkeys(k for k in runs if k not in self._runs))
-        if len(todo) < 2:
+        if len(todo) < 2 or not get_valve_model(self.model).fleet_pays:
             for params, events in todo:
                 self.run(params, events)
             return

@@ -498,3 +498,24 @@ def test_a_bag_read_by_sensors_outside_the_calibration_says_so(ros_context, tmp_
     warnings = json.loads(out.read_text())['warnings']
     assert any("xj sensor's noise is 5 x" in w for w in warnings), warnings
     assert any(w.startswith('the dxj sensor has a bias or drift') for w in warnings), warnings
+
+
+def test_a_fleet_fit_is_the_fit_run_by_run(monkeypatch):
+    """The fits run their multi-start screens and finite differences as one fleet where the
+    model gains from it (SQ): the diagnosis -- every candidate's severity, RSS, interval,
+    the model runs counted -- is the one run by run gives, to the last bit (a fleet that
+    ran the wrong unit's parameters, or a Jacobian taken at other points, would differ)."""
+    import dataclasses
+    from servovalve_twin.physics import valves
+    sig, _, _ = calibration.unit_signals('leakage_growth', 0.6, 'paper', 41, spread=1.5)
+
+    def answer():
+        d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'),
+                     faults=('leakage_growth', 'null_bias', 'supply_loss'))
+        return ([(c.fault, c.severity, c.rss, c.interval) for c in d.candidates],
+                d.evaluations)
+    fleet = answer()
+    assert valves.VALVE_MODELS['SQ'].fleet_pays
+    monkeypatch.setitem(valves.VALVE_MODELS, 'SQ',
+                        dataclasses.replace(valves.VALVE_MODELS['SQ'], fleet_pays=False))
+    assert answer() == fleet

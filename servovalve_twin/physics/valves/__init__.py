@@ -81,6 +81,10 @@ class ValveModel:
     iterative: bool = False     # counts iterations and non-converged calls (C4, HD)
     #: may serve as the monitor model (a fast simplified model; HD is the plant reference)
     monitor: bool = True
+    #: runs faster per unit as a fleet (:func:`..fleet.simulate_many`) than alone: a step
+    #: whose latency chain is long (SQ's square roots: 1.22 x at 3 units, 1.30 x at 8) gains
+    #: from interleaved units; a short one kept in registers alone loses (C2: 0.65 x; HD: 1.0 x)
+    fleet_pays: bool = False
     #: params -> the kernel constants VC0.. this model reads (computed once, not per step)
     constants: Callable[[EhaParams], tuple[float, ...]] = _no_constants
     #: (params, xj) -> the valve state at rest
@@ -157,7 +161,7 @@ VALVE_MODELS: dict[str, ValveModel] = {m.name: dataclasses.replace(m, id=i) for 
                iterative=True, last_info=_s.c4_info),
     ValveModel('SQ', _sq.model_sq, 'beyond the paper (issue 6)',
                'explicit four-edge orifice law: sqrt load droop, P12 > PSR when over-run',
-               constants=_sq.sq_constants),
+               constants=_sq.sq_constants, fleet_pays=True),
     ValveModel('HD', _hd.hd_solve, 'Fig. 23 reference',
                'four-edge valve: laps, clearance, orifice + laminar gap, port continuity',
                has_ports=True, iterative=True, monitor=False,
