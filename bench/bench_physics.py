@@ -10,6 +10,8 @@ one core, and what a user waits for around it.
    with a warm cache, and the first-ever call (an empty numba cache: everything compiles).
 3. SQ's step cost over C2's, and C2 read by three noisy sensors over C2 with ideal ones,
    interleaved in one process (small ratios need one run).
+4. Units per second of a fleet (``simulate_many``, 3 and 8 units) over the same units run one
+   by one, per model, each in a process of its own.
 
     .venv/bin/python bench/bench_physics.py [--repeat 9] [--rounds 7]
 """
@@ -80,6 +82,33 @@ for _ in range(int(sys.argv[1])):
     ratios.append(sq / c2)
     sensed.append(c2s / c2)
 print(json.dumps(dict(sq=ratios, sensed=sensed)))
+'''
+
+#: a fleet of N units (masses apart) in one call against the same units one by one, per
+#: model, in a process of its own (interleaved with other runs, the ratios moved by 30 %)
+FLEET = '''
+import sys, time, json
+from servovalve_twin.config import load_scenario
+from servovalve_twin.physics.fleet import simulate_many
+from servovalve_twin.physics.params import DEFAULTS
+from servovalve_twin.physics.simulate import simulate
+model, n, repeat = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+paper = load_scenario('paper')
+units = [DEFAULTS.replace(M=480.0 + 5 * k) for k in range(n)]
+
+def fleet():
+    t = time.perf_counter()
+    simulate_many(model, paper, units, ecu_period=1e-3)
+    return time.perf_counter() - t
+
+def one_by_one():
+    t = time.perf_counter()
+    for p in units:
+        simulate(model, paper, params=p, ecu_period=1e-3)
+    return time.perf_counter() - t
+fleet(); one_by_one()
+print(json.dumps([min(one_by_one() for _ in range(3)) / min(fleet() for _ in range(3))
+                  for _ in range(repeat)]))
 '''
 
 
@@ -161,6 +190,17 @@ def main() -> None:
         print(f'\n{what}, interleaved in one process: median '
               f'{statistics.median(ratios):.2f} (min {min(ratios):.2f}, max '
               f'{max(ratios):.2f}, {len(ratios)} pairs)')
+    print('\nUnits per second, simulate_many of N units / the same units one by one '
+          '(1 ms ECU; a process per model, median of the pairs):\n')
+    print('| model | N = 3 | N = 8 |')
+    print('|---|---|---|')
+    for model in ('C2', 'SQ', 'HD'):
+        cells = []
+        for n in (3, 8):
+            out = subprocess.run([sys.executable, '-c', FLEET, model, str(n), str(args.repeat)],
+                                 capture_output=True, text=True, check=True).stdout
+            cells.append(f'{statistics.median(json.loads(out.strip().splitlines()[-1])):.2f}')
+        print(f'| {model} | {cells[0]} | {cells[1]} |')
 
 
 if __name__ == '__main__':
