@@ -32,6 +32,28 @@ def test_simulate_hd_adds_port_pressures_and_params_apply(tmp_path):
     np.testing.assert_array_equal(data['xj'], ref['xj'])
 
 
+def test_simulate_with_sensors_writes_readings_and_truth(tmp_path):
+    """A scenario file with sensors: the CSV's xj is what the XJ sensor read, xj_true the
+    truth beside it (simulate()'s), and --sensor-seed another realisation of the same
+    sensors (the truth moves too: the ECU closes its loop on the reading)."""
+    import yaml
+    scn = tmp_path / 's.yaml'
+    scn.write_text(yaml.safe_dump({'duration': 0.1, 'com': [[0.0, 0.01]],
+                                   'sensors': {'seed': 3, 'xj': {'noise': 2.0e-5}}}))
+    rows = {}
+    for seed in (None, 4):
+        out = tmp_path / f'run{seed}.csv'
+        args = ['simulate', '--valve-model', 'C2', '--scenario', str(scn), '--out', str(out)]
+        assert main(args + ([] if seed is None else ['--sensor-seed', str(seed)])) == 0
+        rows[seed] = read_csv(out)
+        ref = simulate('C2', str(scn), sensor_seed=seed)
+        assert list(rows[seed]) == list(CSV_COLUMNS) + ['xj_true']
+        assert np.array_equal(rows[seed]['xj'], ref['xj'])
+        assert np.array_equal(rows[seed]['xj_true'], ref.truth['xj'])
+    assert not np.array_equal(rows[None]['xj'], rows[None]['xj_true'])
+    assert not np.array_equal(rows[None]['xj'], rows[4]['xj'])
+
+
 def test_characteristic(tmp_path):
     out, png = tmp_path / 'ch.csv', tmp_path / 'ch.png'
     assert main(['characteristic', '--valve-model', 'HD', '--qj', '0,8e-5', '--points', '41',
