@@ -63,10 +63,6 @@ def jit(fn=None, **options):
     def wrap(f):
         if _PhysicsCache is None:
             return njit(cache=True, **options)(f)
-        # the stamp is taken now, as the sources are imported, not at the first compile: a
-        # process that compiled old code after the sources were edited under it stored that
-        # code under the new stamp (seen: a heap corruption from a stale loop)
-        physics_stamp()
         dispatcher = njit(**options)(f)
         # what cache=True does (Dispatcher.enable_caching), with the physics-wide stamp
         dispatcher._cache = _PhysicsCache(dispatcher.py_func)
