@@ -18,7 +18,7 @@ from ..errors import ModelError, ParameterError
 from ..jitcache import jit
 from .ecu import ecu_current
 from .jack import jack_advance
-from .plant import OUT_COLUMNS, valve_p12_inline
+from .plant import OUT_COLUMNS, own_cache_name, valve_p12_inline
 from .scenario import Scenario, as_scenario
 from .servovalve import PLANT_STATE, S_DXF, S_DXJ, S_SIZE, S_XF, S_XJ, S_XS, servovalve_advance
 from .simulate import (CHUNK_STEPS, CSV_COLUMNS, OUTPUT_PERIOD_NS, PORT_COLUMNS, RunResult,
@@ -35,7 +35,6 @@ def run_fleet_for(model_id: int):
     """The fleet loop of the valve model with registry id ``model_id`` (a closure constant,
     as :func:`~.plant.run_steps_for`'s; the arithmetic of each unit's step is that loop's, in
     the same order)."""
-    @jit
     def run_fleet(s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
                   carry, out, out_dt, failed):
         """Steps ``i0 .. i0 + len(com) - 1`` of every unit ``u``: state ``s[u]``, valve state
@@ -89,7 +88,7 @@ def run_fleet_for(model_id: int):
                     out[u, row, 11] = vsu[V_P2]
         return 0
 
-    return run_fleet
+    return jit(own_cache_name(run_fleet, f'm{model_id}'))
 
 
 def simulate_many(valve_model: str, scenario: Scenario | Mapping,

@@ -75,7 +75,6 @@ def run_steps_for(model_id: int, sensed: bool = False):
     that of :func:`plant_step`, in the same order, so the rows are bit-identical (tested
     against :func:`run_tick`).
     """
-    @jit
     def run_steps(s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
                   carry, out, out_dt, spec, keys, held, sense_every):
         """Run the steps ``i0 .. i0 + len(com) - 1`` of a run of ``n`` steps; called chunk
@@ -159,7 +158,17 @@ def run_steps_for(model_id: int, sensed: bool = False):
         carry[1] = k
         return -1
 
-    return run_steps
+    return jit(own_cache_name(run_steps, f'm{model_id}' + ('_sensed' if sensed else '')))
+
+
+def own_cache_name(fn, tag: str):
+    """``fn`` named apart per closure (numba names a cached function's files by its
+    qualified name): the loops of all models and variants shared one index file, and two
+    processes compiling two of them at once could each give its machine code the same data
+    file -- the index then handed one loop another's code (numba picks a data file's name
+    from the index it read, and does not check it on loading)."""
+    fn.__qualname__ = f'{fn.__qualname__}_{tag}'
+    return fn
 
 
 @jit

@@ -112,3 +112,17 @@ def test_physics_stamp_changes_with_any_physics_source(tmp_path, monkeypatch):
     assert jitcache.physics_stamp() != after_hd
     monkeypatch.undo()
     jitcache.physics_stamp.cache_clear()
+
+
+def test_each_loop_has_its_own_cache_files():
+    """Every model's loop, its variant with sensors and its fleet loop keep their machine
+    code in files of their own: sharing one index, two processes compiling two of them at
+    once could give both codes one data file, and the index one loop another's code (numba
+    names the data file from the index it read and checks nothing on loading)."""
+    from servovalve_twin.physics.fleet import run_fleet_for
+    from servovalve_twin.physics.plant import run_steps_for
+    from servovalve_twin.physics.valves import VALVE_MODELS
+    loops = [run_steps_for(m.id, sensed) for m in VALVE_MODELS.values()
+             for sensed in (False, True)] + [run_fleet_for(m.id) for m in VALVE_MODELS.values()]
+    names = {d._cache._cache_file._index_name for d in loops}
+    assert len(names) == len(loops)
