@@ -33,9 +33,6 @@ class Simulate(Command):
         from ..config import load_scenario
         from ..runs import simulate, write_table
         scenario = load_scenario(args.scenario)
-        if args.sensor_seed is not None and not scenario.sensors:
-            raise TwinError(f'--sensor-seed: the scenario {scenario.name!r} declares no sensors '
-                            '(add a sensors: section, physics/sensors.py)')
         result = simulate(args.valve_model, scenario, overrides(args),
                           ecu_period=args.ecu_period, sensor_seed=args.sensor_seed)
         write_table(args.out, {**result.signals,

@@ -136,7 +136,10 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     kernels, seg_start = _fault_segments(model, scn, p)
     sens = scn.sensors if sensors is None else (
         sensors if isinstance(sensors, Sensors) else sensors_from_dict(sensors))
-    if sens is not None and sensor_seed is not None:
+    if sensor_seed is not None:
+        if not sens:
+            raise ParameterError(f'sensor_seed: the scenario {scn.name!r} declares no sensors '
+                                 '(a seed of what? add a sensors: section)')
         sens = sens.with_seed(sensor_seed)
     if sens != scn.sensors:
         scn = dataclasses.replace(scn, sensors=sens)     # the result says what measured it

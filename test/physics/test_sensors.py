@@ -8,7 +8,7 @@ import pytest
 from scipy import stats
 
 from servovalve_twin.config import load_scenario
-from servovalve_twin.errors import ScenarioError
+from servovalve_twin.errors import ParameterError, ScenarioError
 from servovalve_twin.physics.scenario import scenario_from_dict
 from servovalve_twin.physics.sensors import (SENSED, normal_draws, sensors_from_dict, signal_key,
                                              std_normal, std_normal_py)
@@ -154,6 +154,13 @@ def test_bad_sensors_are_named(sensors, fragment):
     with pytest.raises(ScenarioError, match='scenario.sensors') as err:
         scenario_from_dict(_with(short(), sensors))
     assert fragment in str(err.value)
+
+
+def test_a_seed_without_sensors_is_refused():
+    """A sensor seed for a scenario without sensors is a mistake (a realisation of nothing),
+    not a run silently like the ideal one."""
+    with pytest.raises(ParameterError, match='declares no sensors'):
+        simulate('C2', short(), sensor_seed=3)
 
 
 def test_a_sensor_period_must_be_whole_control_periods():
