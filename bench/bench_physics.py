@@ -34,6 +34,7 @@ from servovalve_twin.runs import simulate
 from servovalve_twin.config import load_scenario
 from servovalve_twin.physics import simulate as S
 from servovalve_twin.physics.plant import run_steps_for
+from servovalve_twin.physics.sensors import sensor_table
 from servovalve_twin.physics.servovalve import S_SIZE
 from servovalve_twin.physics.valves import get_valve_model
 imp = time.perf_counter() - t
@@ -52,7 +53,7 @@ for _ in range(repeat):
     out = np.full((n // 100 + 1, 12), np.nan); s = np.zeros(S_SIZE); vs = m.initial_state(p)
     t = time.perf_counter()
     run_steps_for(m.id, False)(s, vs, kern, start, com, fr, psr, 0, n, 0, 100, np.zeros(2), out,
-                               1e-3, np.zeros((6, 7)), np.zeros(6, np.uint64), np.zeros(6), 100)
+                               1e-3, *sensor_table(None, 100, p.DT), np.zeros(6), 100)
     loops.append(time.perf_counter() - t)
 print(json.dumps(dict(first=first, walls=walls, loops=loops, steps=r.info['steps'], imp=imp)))
 '''

@@ -132,10 +132,11 @@ class EhaFmu(Fmi2Slave):
         plant = self._plant
         self.xj, self.dxj, self.xs = plant.xj, plant.dxj, plant.xs
         # the valve's answer at the new state to the supply of the step just taken
-        self.p12 = float(plant.response(self.fr, self.psr)[0])
+        response = plant.response(self.fr, self.psr)
+        self.p12 = float(response[0])
         if plant.sensors is not None:
             # what the sensors read at the step's end (the next step's first period reads the
             # state again at that instant: the same sample)
             self.xs, self.xj, self.dxj = plant.sense_state(self._t_ns).tolist()
-            plant.last[:] = plant.response(self.fr, self.psr)
+            plant.last[:] = response
             self.p12 = float(plant.sense_valve(self._t_ns)[0])

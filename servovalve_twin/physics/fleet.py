@@ -9,6 +9,7 @@ their parameters, run as one fleet.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import Any, Mapping, Sequence
 
@@ -106,7 +107,6 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
         failed, or give 'none' for it
     :returns: per unit, the :class:`RunResult` :func:`~.simulate.simulate` gives it alone
     """
-    import dataclasses
     model = get_valve_model(valve_model)
     scn = as_scenario(scenario)
     if scn.sensors:
@@ -130,9 +130,9 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
     if n_steps * dt_ns != scn.duration_ns:
         raise ParameterError(f'duration {scn.duration} s is not a whole number of DT')
     n_rows = n_steps // out_every + 1
-    segs = [_fault_segments(model, scn if faults is None else
-                            dataclasses.replace(scn, faults=tuple(faults[u])), p)
-            for u, p in enumerate(units)]
+    unit_scns = [scn if faults is None else dataclasses.replace(scn, faults=tuple(f))
+                 for f in (faults or [None] * n_units)]
+    segs = [_fault_segments(model, us, p) for us, p in zip(unit_scns, units)]
     n_seg = max(len(st) for _, st in segs)
     P_arr = np.empty((n_units, n_seg), dtype=segs[0][0].dtype)
     seg_start = np.full((n_units, n_seg), np.iinfo(np.int64).max, dtype=np.int64)
@@ -172,9 +172,8 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
                                  f't = {fail[u] * p.DT:.6f} s')
             results.append(None)
             continue
-        unit_scn = scn if faults is None else dataclasses.replace(scn, faults=tuple(faults[u]))
         results.append(RunResult(
-            valve_model=model.name, scenario=unit_scn, params=p,
+            valve_model=model.name, scenario=unit_scns[u], params=p,
             signals={c: out[u, :, OUT_COLUMNS.index(c)].copy() for c in cols},
             ecu_period=ecu_period, info=dict(model.run_totals(vs[u]), steps=n_steps)))
     return results

@@ -37,6 +37,9 @@ OUT_COLUMNS = ('t',) + NAMES
 #: with sensors, the rows carry the sensed signals' readings in their own columns and the truth
 #: of each in these, after :data:`OUT_COLUMNS`
 TRUTH_COLUMNS = tuple(f'{s}_true' for s in SENSED)
+#: the columns of the sensed signals in the rows, :data:`~.sensors.SENSED` order
+_SENSED_COLUMNS = tuple(OUT_COLUMNS.index(s) for s in SENSED)
+_TRUTH_START = len(OUT_COLUMNS)
 TICK_OUT = ('p12', 'qj', 'p1', 'p2')
 
 
@@ -149,8 +152,8 @@ def run_steps_for(model_id: int, sensed: bool = False):
                 out[row, 11] = vs[V_P2]
                 if sensed:
                     # the truth beside; the readings where a sensor reads
-                    for m, col in enumerate((5, 6, 7, 8, 10, 11)):
-                        out[row, 12 + m] = out[row, col]
+                    for m, col in enumerate(_SENSED_COLUMNS):
+                        out[row, _TRUTH_START + m] = out[row, col]
                         if spec[m, C_ON] != 0.0:
                             out[row, col] = held[m]
         s[S_XF], s[S_DXF], s[S_XS], s[S_XJ], s[S_DXJ] = xf, dxf, xs, xj, dxj

@@ -164,6 +164,15 @@ class Scenario:
     def without_faults(self) -> 'Scenario':
         return dataclasses.replace(self, faults=())
 
+    def with_sensor_seed(self, seed: int) -> 'Scenario':
+        """The scenario with its sensors' noise realisation ``seed``; refused for a scenario
+        without sensors (a seed of nothing: a mistake, not the ideal run)."""
+        from ..errors import ParameterError
+        if not self.sensors:
+            raise ParameterError(f'sensor_seed: the scenario {self.name!r} declares no sensors '
+                                 '(add a sensors: section, physics/sensors.py)')
+        return dataclasses.replace(self, sensors=self.sensors.with_seed(seed))
+
     def without_sensors(self) -> 'Scenario':
         """The scenario measured by ideal sensors: what a model fitted to a unit's readings
         simulates (it must not know the unit's noise realisation)."""

@@ -112,6 +112,17 @@ class Sensors:
         return spec, keys
 
 
+def sensor_table(sensors: Sensors | None, control_steps: int, dt: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`Sensors.table`, or for no sensors (None) the table of ideal ones: every signal
+    read as it is, at every step."""
+    if sensors:
+        return sensors.table(control_steps, dt)
+    spec = np.zeros((len(SENSED), 7))
+    spec[:, C_EVERY] = 1.0
+    return spec, np.zeros(len(SENSED), dtype=np.uint64)
+
+
 def _seed(value: Any, where: str) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
         raise ScenarioError(f'{where}: expected an integer in [0, 2**63 - 1], got {value!r}')
@@ -243,5 +254,6 @@ def normal_draws(seed: int, signal: str, k: np.ndarray) -> np.ndarray:
     return np.array([std_normal_py(key, int(i)) for i in np.asarray(k).ravel()])
 
 
-__all__ = ['SENSED', 'FIELDS', 'SensorSpec', 'Sensors', 'sensors_from_dict', 'sense',
+__all__ = ['SENSED', 'FIELDS', 'SensorSpec', 'Sensors', 'sensors_from_dict', 'sensor_table',
+           'sense',
            'sense_block', 'std_normal', 'std_normal_py', 'signal_key', 'normal_draws']

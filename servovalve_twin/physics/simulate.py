@@ -24,7 +24,7 @@ from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams
 from .plant import OUT_COLUMNS, TICK_OUT, TRUTH_COLUMNS, run_steps_for, run_tick
 from .scenario import Scenario, as_scenario
-from .sensors import N_STATE, SENSED, Sensors, sense_block, sensors_from_dict
+from .sensors import N_STATE, SENSED, Sensors, sense_block, sensor_table, sensors_from_dict
 from .servovalve import PLANT_STATE, S_DXJ, S_SIZE, S_XJ, S_XS
 from .signals import COMMON, PORTS
 from .valves import ValveModel, get_valve_model
@@ -134,19 +134,16 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
         raise ParameterError(f'duration {scn.duration} s is not a whole number of DT = {p.DT} s')
     n_rows = n_steps // out_every + 1      # the memory: ~0.2 kB per row, 0.7 GB at 3600 s
     kernels, seg_start = _fault_segments(model, scn, p)
-    sens = scn.sensors if sensors is None else (
-        sensors if isinstance(sensors, Sensors) else sensors_from_dict(sensors))
+    # the scenario carries the sensors that measured the run (the result says so)
+    if sensors is not None:
+        scn = dataclasses.replace(scn, sensors=sensors if isinstance(sensors, Sensors)
+                                  else sensors_from_dict(sensors))
     if sensor_seed is not None:
-        if not sens:
-            raise ParameterError(f'sensor_seed: the scenario {scn.name!r} declares no sensors '
-                                 '(a seed of what? add a sensors: section)')
-        sens = sens.with_seed(sensor_seed)
-    if sens != scn.sensors:
-        scn = dataclasses.replace(scn, sensors=sens)     # the result says what measured it
+        scn = scn.with_sensor_seed(sensor_seed)
+    sens = scn.sensors
     # a sensor samples every control period by default: the ECU's, or the output rows' when
     # the ECU is continuous (its readings are held between them)
-    spec, keys = (sens.table(ecu_every or out_every, p.DT) if sens
-                  else (np.zeros((len(SENSED), 7)), np.zeros(len(SENSED), dtype=np.uint64)))
+    spec, keys = sensor_table(sens, ecu_every or out_every, p.DT)
     held = np.zeros(len(SENSED))
     out = np.full((n_rows, len(OUT_COLUMNS) + (len(TRUTH_COLUMNS) if sens else 0)), np.nan)
     s = np.zeros(S_SIZE)
@@ -226,19 +223,16 @@ class EhaPlant:
         self.last = np.full(len(TICK_OUT), np.nan)
         self.sensors: Sensors | None = None
         self.measured = np.zeros(len(SENSED))     # the sensors' readings, :data:`SENSED` order
-        self._spec = np.zeros((len(SENSED), 7))   # no sensors: every reading is the truth
-        self._keys = np.zeros(len(SENSED), dtype=np.uint64)
+        self._spec, self._keys = sensor_table(None, 1, self.params.DT)
 
     def set_sensors(self, sensors: Sensors | None, control_period: float) -> None:
         """Measure with ``sensors`` (None: ideal), sampled on the grid of ``control_period``
         (s): the readings of :meth:`sense_state` and :meth:`sense_valve` are those
         :func:`simulate` takes with ``ecu_period`` = ``control_period``."""
         self.sensors = sensors or None
-        if sensors:
-            self._spec, self._keys = sensors.table(
-                steps_per(control_period, self.params, 'the control period'), self.params.DT)
-        else:
-            self._spec = np.zeros((len(SENSED), 7))
+        self._spec, self._keys = sensor_table(
+            sensors, steps_per(control_period, self.params, 'the control period'),
+            self.params.DT)
 
     def sense_state(self, t_ns: int) -> np.ndarray:
         """Read XS, XJ, DXJ at ``t_ns`` (the start of a control period) into

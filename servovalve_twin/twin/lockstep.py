@@ -32,8 +32,6 @@ loop at a tick boundary (``EventsExecutor`` ignores both) and the bag is finaliz
 
 from __future__ import annotations
 
-import dataclasses
-
 import os
 import signal
 import time
@@ -131,11 +129,7 @@ class Twin:
         self.scenario = load_scenario(scenario)
         if sensor_seed is not None:
             # the plant node and the bag's provenance take the sensors from the scenario
-            if not self.scenario.sensors:
-                raise TwinError(f'sensor_seed: the scenario {self.scenario.name!r} declares no '
-                                'sensors (add a sensors: section, physics/sensors.py)')
-            self.scenario = dataclasses.replace(
-                self.scenario, sensors=self.scenario.sensors.with_seed(sensor_seed))
+            self.scenario = self.scenario.with_sensor_seed(sensor_seed)
         self.params = effective_params(self.scenario, overrides, base_params)
         self.valve_model = valve_model
         self.control_period = control_period
