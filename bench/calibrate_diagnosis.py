@@ -19,7 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_FILE, LEVELS,
-                                                     NOISE, VARY, calibration_jobs,
+                                                     EXTRA_UNITS, NOISE, VARY, calibration_jobs,
                                                      fit_calibration, to_g, unit_signals)
 from servovalve_twin.prognostics.diagnosis import HEALTHY, diagnose
 
@@ -79,7 +79,7 @@ def main() -> None:
         with open(args.records, 'w', encoding='utf-8') as fh:
             json.dump(dict(jobs=jobs, results=[{json.dumps(list(k)): v for k, v in r.items()}
                                                for r in results]), fh)
-    out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units,
+    out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units, extra_units=EXTRA_UNITS,
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
                           spread=SPREAD,
                           noise=NOISE, noise_gain='log-uniform 0.5-2', diagnoses=len(jobs)))
@@ -97,8 +97,9 @@ def main() -> None:
                   f'{c["named"]:.0%} of {c["units"]}')
         for scen, fits in out[key]['by_scenario'].items():
             for f, c in fits.items():
-                print(f'  on {scen:8s} {f:24s} bias {c["bias"]:+.4f} slope {c["slope"]:+.3f} '
-                      f'sigma {c["sigma"]:.4f}')
+                shape = 'kernel      ' if c.get('points') else f'slope {c["slope"]:+.3f}'
+                print(f'  on {scen:8s} {f:24s} bias {c["bias"]:+.4f} {shape} sigma '
+                      f'{c["sigma"]:.4f} k {c["k"]:.2f}')
         print('  rms quantiles', {k: round(v, 3) for k, v in out[key]['rms_quantiles'].items()})
 
 

@@ -350,7 +350,7 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
     standard deviation of the distance from healthy (what :func:`..prognosis.prognose` takes
     as ``model_sigma``). Unchanged, with a spread of 0, for a fault the calibration lacks.
     ``scenario``: the calibration scenario the flight is (its own entry, where there is one)."""
-    from .calibration import Z90, bias_at, fault_calibration, from_g, to_g
+    from .calibration import Z90, bias_at, fault_calibration, from_g, spread_of, to_g
     c = fault_calibration(cal, fault, scenario)
     spec = FAULTS[fault]
     lo, hi = interval95
@@ -359,7 +359,7 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
     se = (to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96)
     g = to_g(fault, severity)
     g = g - bias_at(c, g)
-    half = Z90 * math.hypot(se, c['sigma'])
+    half = Z90 * spread_of(c, se)
     est = min(max(from_g(fault, g), spec.lo), spec.hi)
     iv = (max(from_g(fault, g - half), spec.lo), min(from_g(fault, g + half), spec.hi))
     # the spread in g as a relative error of s - h: dg * s/(s - h) for a multiplier (g = ln

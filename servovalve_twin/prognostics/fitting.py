@@ -194,6 +194,7 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
         starts = [[g] + design for g in start_grid(faults[0])] if nf == 1 else [
             [FAULTS[f].healthy for f in faults] + design]
     starts = [np.clip(np.asarray(x, dtype=float), lo, hi) for x in starts]
+    costs = None
     if len(starts) > 1:
         problem.run_many([to_run(x) for x in starts])
         costs = [float(np.sum(fun(x) ** 2)) for x in starts]
@@ -201,10 +202,65 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
     else:
         x0 = starts[0]
     scale = [(h - l) / 10.0 for l, h in zip(lo, hi)]
-    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-3,
-                        method='trf', xtol=1e-6, ftol=1e-8, max_nfev=60 * max(1, nf),
-                        workers=problem.fleet_map(to_run))
+
+    def solve(x_start):
+        return least_squares(fun, x_start, bounds=(lo, hi), x_scale=scale, diff_step=1e-3,
+                             method='trf', xtol=1e-6, ftol=1e-8, max_nfev=60 * max(1, nf),
+                             workers=problem.fleet_map(to_run))
+
+    sol = solve(x0)
+    if nf == 1 and costs is not None and not np.any(sol.jac[:, 0]):
+        # the cost does not move with the severity at the fit (a finite difference sees a flat
+        # stretch: static friction the jack never breaks away from), so the solver stopped
+        # where it began, on a grid point; the cost may still have a valley between grid
+        # points (static friction of 6 x on the built-in test: the cost 11 069 from 5.6 x up,
+        # 7 369 at 4.7 x, the valley 10 % wide), so search the flat stretch finely
+        x1 = _flat_stretch_minimum(problem, faults[0], fun, to_run, starts, costs, sol.x)
+        if x1 is not None:
+            sol = solve(x1)
     return sol.x, sol.fun, sol.jac
+
+
+#: how close to the best start's cost a start grid's point counts as on its flat stretch
+FLAT_COST = 5e-3
+#: the step of the search across a flat stretch: 6 % of a multiplier (the valley of static
+#: friction on the built-in test is 10 % wide), 1/64 of a fraction's or a value's range
+FLAT_RATIO, FLAT_SPLIT = 1.06, 64
+
+
+def _flat_stretch_minimum(problem, fault, fun, to_run, starts, costs, x):
+    """A better severity than ``x``'s on the start grid's flat stretch around the best start
+    (the grid points within :data:`FLAT_COST` of its cost), searched from the grid point
+    below the stretch to the one above it in steps of :data:`FLAT_RATIO` (a multiplier) or
+    :data:`FLAT_SPLIT` of the range, the nuisance held at ``x``; None when the best start has
+    no flat neighbour (a bound, not a stretch) or no point is better. A stretch from the
+    healthy severity on is where the fault has no effect yet: searched from its far end only."""
+    spec = FAULTS[fault]
+    sev = np.array([s[0] for s in starts])
+    order = np.argsort(sev)
+    sev, cost = sev[order], np.asarray(costs)[order]
+    best = int(np.argmin(cost))
+    flat = np.abs(cost - cost[best]) <= FLAT_COST * cost[best]
+    a = b = best
+    while a > 0 and flat[a - 1]:
+        a -= 1
+    while b < len(sev) - 1 and flat[b + 1]:
+        b += 1
+    if a == b:
+        return None
+    lo_s = sev[b] if sev[a] == spec.healthy else sev[max(a - 1, 0)]
+    hi_s = sev[min(b + 1, len(sev) - 1)]
+    if spec.kind == 'scale':
+        n = int(np.clip(math.ceil(math.log(hi_s / lo_s) / math.log(FLAT_RATIO)), 4, 96)) + 1
+        grid = np.geomspace(lo_s, hi_s, n)
+    else:
+        n = int(np.clip(math.ceil((hi_s - lo_s) / (spec.hi - spec.lo) * FLAT_SPLIT), 4, 96)) + 1
+        grid = np.linspace(lo_s, hi_s, n)
+    tries = [np.concatenate(([g], x[1:])) for g in grid]
+    problem.run_many([to_run(t) for t in tries])
+    tcost = [float(np.sum(fun(t) ** 2)) for t in tries]
+    i = int(np.argmin(tcost))
+    return tries[i] if tcost[i] < float(np.sum(fun(x) ** 2)) else None
 
 
 def jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:

@@ -15,7 +15,7 @@ from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (LEVELS, calibration_for, fit_calibration,
                                                      from_g, gof_p_value, severity_at, to_g,
                                                      unit_signals)
-from servovalve_twin.prognostics.diagnosis import UNEXPLAINED, diagnose
+from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, UNEXPLAINED, diagnose
 
 
 def test_levels_and_coordinates_against_hand_values():
@@ -116,16 +116,16 @@ def test_a_linear_bias_per_scenario_is_recovered():
     constant, and a flight of neither falls back to the pooled one."""
     rng = np.random.default_rng(4)
     rec = []
-    for scen in ('bit', 'paper'):
+    for scen in ('steps', 'paper'):
         for _ in range(200):
             truth = float(np.exp(rng.uniform(0.5, 3.0)))
             g = math.log(truth)
-            e = (0.1 + 0.2 * (g - 1.75)) if scen == 'bit' else -0.05
+            e = (0.1 + 0.2 * (g - 1.75)) if scen == 'steps' else -0.05
             e += rng.normal(0.0, 0.01)
             rec.append(dict(fault='leakage_growth', truth=truth, named='leakage_growth',
                             estimate=truth * math.exp(e), se=0.0, rms=1.0, scenario=scen))
     cal = fit_calibration(rec)
-    own = cal['by_scenario']['bit']['leakage_growth']
+    own = cal['by_scenario']['steps']['leakage_growth']
     assert own['slope'] == pytest.approx(0.2 / 1.2, abs=0.01)      # per g(estimate)
     g_est = 3.0 + 0.1 + 0.2 * (3.0 - 1.75)
     assert calibration.bias_at(own, g_est) == pytest.approx(g_est - 3.0, abs=0.01)
@@ -134,10 +134,80 @@ def test_a_linear_bias_per_scenario_is_recovered():
         pytest.approx(-0.05, abs=0.005)
     assert calibration.fault_calibration(cal, 'leakage_growth', 'eval') is cal['faults'][
         'leakage_growth']
-    # a scenario's own spread never narrower than the pooled one (nine units do not pin it)
+    # a scenario's own spread stands alone on 200 units; on nine it is never narrower than
+    # the pooled one (nine units do not pin it)
     pooled = cal['faults']['leakage_growth']['sigma']
-    assert cal['by_scenario']['bit']['leakage_growth']['sigma'] < pooled
-    assert calibration.fault_calibration(cal, 'leakage_growth', 'bit')['sigma'] == pooled
+    own_sigma = cal['by_scenario']['steps']['leakage_growth']['sigma']
+    assert own_sigma < pooled
+    assert calibration.fault_calibration(cal, 'leakage_growth', 'steps')['sigma'] == own_sigma
+    few = fit_calibration([r for r in rec if r['scenario'] == 'paper']
+                          + [r for r in rec if r['scenario'] == 'steps'][:9])
+    assert few['by_scenario']['steps']['leakage_growth']['units'] == 9
+    assert calibration.fault_calibration(few, 'leakage_growth', 'steps')['sigma'] == \
+        few['faults']['leakage_growth']['sigma']
+
+
+def test_a_bias_that_changes_sign_with_the_severity_follows_it_on_the_built_in_test():
+    """Static friction on the built-in test as SQ reads it: 20 % low up to 4.5 x, 15 % high at
+    20 x (in g: -0.22 and +0.14). The built-in test's own entry (units spread between the
+    levels) follows it; a line through both would miss each end by ~0.1."""
+    rng = np.random.default_rng(5)
+    rec = []
+    for _ in range(30):
+        for g_true, e in ((rng.uniform(0.8, 1.6), -0.22), (rng.uniform(2.9, 3.1), 0.14)):
+            truth = float(np.exp(g_true))
+            rec.append(dict(fault='static_friction', truth=truth, named='static_friction',
+                            estimate=truth * math.exp(e + rng.normal(0, 0.01)), se=0.01,
+                            rms=1.0, scenario='bit'))
+    own = fit_calibration(rec)['by_scenario']['bit']['static_friction']
+    assert calibration.bias_at(own, 1.0) == pytest.approx(-0.22, abs=0.01)
+    assert calibration.bias_at(own, 3.14) == pytest.approx(0.14, abs=0.01)
+    assert own['sigma'] < 0.03
+
+
+def test_a_kernel_bias_is_scored_on_units_it_was_not_fitted_to():
+    """Eight units 0.6 apart in g (twice the bandwidth), errors alternating +-0.1: a kernel
+    through them nearly interpolates each one, so its spread must come from each unit left
+    out (then the neighbours say -0.1 where it is +0.1: ~0.2), not from its own fit."""
+    rec = [dict(fault='static_friction', truth=float(np.exp(0.5 + 0.6 * i)),
+                named='static_friction', estimate=float(np.exp(0.5 + 0.6 * i + e)), se=0.0,
+                rms=1.0, scenario='bit') for i, e in enumerate([0.1, -0.1] * 4)]
+    own = fit_calibration(rec)['by_scenario']['bit']['static_friction']
+    assert calibration.Z90 * own['sigma'] > 0.15
+
+
+def test_a_fit_that_does_not_pin_its_severity_widens_its_own_interval_not_every_one():
+    """Forty units pinned to +-0.01 and twenty on a flat likelihood (their own se 0.3, their
+    errors twice that): the model-form spread stays that of the pinned ones, and the others'
+    own standard error is scaled by ~2 to hold them at the conformal rank."""
+    rng = np.random.default_rng(6)
+    rec = []
+    for i in range(60):
+        flat = i % 3 == 0
+        se = 0.3 if flat else 0.005
+        e = rng.normal(0.0, 2 * se if flat else 0.01)
+        truth = float(np.exp(rng.uniform(0.5, 3.0)))
+        rec.append(dict(fault='static_friction', truth=truth, named='static_friction',
+                        estimate=truth * math.exp(e), se=se, rms=1.0))
+    c = fit_calibration(rec)['faults']['static_friction']
+    assert c['pinned'] == 40 and c['sigma'] < 0.025
+    assert 1.5 < c['k'] < 3.0
+    held = [abs(math.log(r['estimate'] / r['truth']) - c['bias'])
+            <= calibration.Z90 * calibration.spread_of(c, r['se']) for r in rec]
+    assert sum(held) >= 54
+
+
+def test_the_extra_units_leave_the_first_ones_and_spread_between_the_levels():
+    jobs = calibration.calibration_jobs(2, 7)
+    per_round = 1 + len(DIAGNOSABLE) * len(LEVELS)
+    first = 2 * len(calibration.CAL_SCENARIOS) * per_round
+    assert len(jobs) == first + sum(calibration.EXTRA_UNITS.values()) * per_round
+    # the first units: the levels, seeds in sequence, whatever the extra ones are
+    assert [j[3] for j in jobs] == [7 * 1_000_003 + k for k in range(len(jobs))]
+    assert {j[1] for j in jobs[:first] if j[0]} == set(LEVELS)
+    extra = [j[1] for j in jobs[first:] if j[0]]
+    assert all(LEVELS[0] <= q <= 1.0 for q in extra)
+    assert len(set(extra)) > len(extra) // 2
 
 
 def test_a_bag_is_matched_to_its_calibration_scenario_by_its_inputs():
