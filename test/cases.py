@@ -175,6 +175,10 @@ BAD_COMMANDS = [
     _row(['diagnose', '--json', 'x.json'], 'diagnose needs BAG'),
     _row(['diagnose', '@paper_HD', '--limits', 'paper'], 'not both'),
     _row(['diagnose', '--limits', 'paper', '--faults', 'wear'], "unknown fault 'wear'"),
+    _row(['diagnose', '--limits', 'paper', '--onset-at', '1.5'], 'outside the flight'),
+    _row(['diagnose', '--limits', 'paper', '--onset-at', 'nan'], 'finite number >= 0'),
+    _row(['diagnose', '@paper_HD', '--json', 'd.json', '--onset-at', '0.3'],
+         'goes with --limits'),
     # playback
     _row(['play', '@paper_HD', '--rate', '1e-300'], 'rate must be a factor in [0.001, 1e+06]',
          _ROS),

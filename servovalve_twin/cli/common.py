@@ -70,6 +70,16 @@ def positive_float(text: str) -> float:
     return v
 
 
+def nonnegative_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
+    if not 0 <= v < float('inf'):
+        raise argparse.ArgumentTypeError(f'expected a finite number >= 0, got {text!r}')
+    return v
+
+
 def seed_int(text: str) -> int:
     """A seed: an integer in [0, 2**63 - 1]."""
     try:

@@ -11,7 +11,7 @@ from typing import Sequence
 from ..errors import TwinError
 from ..outputs import write_new
 from .common import (Command, add_algorithm_options, add_param_options, algorithm_params,
-                     overrides, positive_float)
+                     nonnegative_float, overrides, positive_float)
 
 #: the fewest block-bootstrap refits whose percentiles make an interval
 MIN_BOOTSTRAP = 20
@@ -50,6 +50,9 @@ class Diagnose(Command):
         p.add_argument('--limits', metavar='SCENARIO',
                        help="instead of a bag: each fault's detection limit and severity "
                             'resolution on this excitation (a built-in name or a YAML file)')
+        p.add_argument('--onset-at', type=nonnegative_float, metavar='T',
+                       help='with --limits: the limits of faults that begin at T s of the '
+                            'flight (default 0: present from the start)')
         p.add_argument('--faults', metavar='NAMES|all', help='comma-separated hypotheses '
                        '(default all the catalog faults a simplified model can see)')
         p.add_argument('--window', metavar='T0:T1', help='fit the rows in [T0, T1] s (default '
@@ -80,6 +83,9 @@ class Diagnose(Command):
             if args.bag is not None:
                 raise TwinError('diagnose takes BAG or --limits SCENARIO, not both')
             return _print_limits(args, free, parse_faults(args.faults))
+        if args.onset_at is not None:
+            raise TwinError('--onset-at goes with --limits SCENARIO (a fit finds the onset '
+                            'with --onset)')
         if args.bag is None or args.json is None:
             raise TwinError('diagnose needs BAG and --json FILE (or --limits SCENARIO for the '
                             'detection limits of an excitation)')
@@ -135,12 +141,13 @@ def _print_limits(args: argparse.Namespace, free: tuple[str, ...],
     from ..prognostics.excitation import detection_limits, format_limits
     scn = load_scenario(args.limits)
     design = effective_params(scn, overrides(args))
+    onset = args.onset_at or 0.0
     lims = detection_limits(scn, design, model=args.model, free=free, faults=faults,
-                            control_period=args.control_period or 1e-3)
+                            control_period=args.control_period or 1e-3, onset=onset)
     if args.json:
         write_json(args.json, dict(scenario=scn.name, model=args.model, free=list(free),
-                                   limits=[x.to_json() for x in lims]))
-    print(format_limits({scn.name: lims}))
+                                   onset=onset, limits=[x.to_json() for x in lims]))
+    print(format_limits({scn.name + (f' (faults from {onset:g} s)' if onset else ''): lims}))
     return 0
 
 

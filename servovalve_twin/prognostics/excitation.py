@@ -82,11 +82,16 @@ class Excitation:
 
     def __init__(self, scenario: Scenario | Mapping[str, Any] | str, design: EhaParams = DEFAULTS,
                  *, model: str = 'SQ', control_period: float = 1e-3,
-                 free: Sequence[str] = ('CJ', 'M')):
+                 free: Sequence[str] = ('CJ', 'M'), onset: float = 0.0):
         if isinstance(scenario, str):
             from ..config import load_scenario
             scenario = load_scenario(scenario)
         self.scenario = as_scenario(scenario).without_faults().without_sensors()
+        if not 0.0 <= onset < self.scenario.duration:
+            raise TwinError(f'onset {onset:g} s lies outside the flight [0, '
+                            f'{self.scenario.duration:g}) s')
+        #: when the faults of the signatures begin [s]: what part of the flight shows them
+        self.onset = float(onset)
         self.design, self.model, self.period = design, model, control_period
         self.healthy = self._run(design)
         mismatch = _vector(simulate(REFERENCE_PLANT, self.scenario, params=design,
@@ -106,15 +111,22 @@ class Excitation:
                          else np.zeros((self.n, 0)))
         self._sig: dict[tuple[str, float], np.ndarray] = {}
 
-    def _run(self, params: EhaParams) -> np.ndarray:
-        return _vector(simulate(self.model, self.scenario, params=params,
+    def _run(self, params: EhaParams, faults: tuple = ()) -> np.ndarray:
+        scn = dataclasses.replace(self.scenario, faults=faults) if faults else self.scenario
+        return _vector(simulate(self.model, scn, params=params,
                                 ecu_period=self.period).signals)
 
     def signature(self, fault: str, severity: float) -> np.ndarray:
-        """``d_f(s)`` with the free nuisance's directions projected out."""
+        """``d_f(s)`` with the free nuisance's directions projected out; the fault from
+        :attr:`onset` on."""
         key = (fault, float(severity))
         if key not in self._sig:
-            d = self._run(combine(self.design, {fault: float(severity)})) - self.healthy
+            if self.onset:
+                d = self._run(self.design, (dict(at=self.onset, fault=fault,
+                                                 severity=float(severity)),))
+            else:
+                d = self._run(combine(self.design, {fault: float(severity)}))
+            d = d - self.healthy
             self._sig[key] = d - self.nuisance @ (self.nuisance.T @ d)
         return self._sig[key]
 
@@ -200,14 +212,16 @@ class Limit:
 
 def detection_limits(scenario, design: EhaParams = DEFAULTS, *, model: str = 'SQ',
                      control_period: float = 1e-3, free: Sequence[str] = ('CJ', 'M'),
-                     faults: Sequence[str] = DIAGNOSABLE) -> list[Limit]:
-    """Each fault's detection limit and severity resolution on ``scenario``."""
+                     faults: Sequence[str] = DIAGNOSABLE, onset: float = 0.0) -> list[Limit]:
+    """Each fault's detection limit and severity resolution on ``scenario``, for faults that
+    begin at ``onset`` [s] (0: present from the start)."""
     from .calibration import calibration_for
     for f in faults:
         if f not in DIAGNOSABLE:
             raise TwinError(f'unknown fault {f!r} for a detection limit; expected one of '
                             f'{list(DIAGNOSABLE)}')
-    exc = Excitation(scenario, design, model=model, control_period=control_period, free=free)
+    exc = Excitation(scenario, design, model=model, control_period=control_period, free=free,
+                     onset=onset)
     cal = calibration_for(model, free)
     return [Limit(fault=f, limit=exc.detection_limit(f), mild=severity_at(f, MILD),
                   resolution=exc.resolution(f, calibration=cal),

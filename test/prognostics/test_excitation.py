@@ -62,6 +62,29 @@ def test_margin_against_an_independent_computation():
         assert exc.n_eff == pytest.approx(n_eff, rel=1e-9)
 
 
+def test_the_margin_of_a_fault_that_begins_mid_flight():
+    """A fault from 0.6 s: its signature is the run with the fault scheduled at 0.6 s (zero
+    before it, recomputed here from simulate()), and a static friction that would be seen
+    from the start (the paper flight's jack breaks away before 0.6 s) is not from 0.6 s."""
+    scn = load_scenario('paper')
+    exc = Excitation(scn, free=(), onset=0.6)
+
+    def run(faults=()):
+        return _stack(simulate('SQ', scenario_from_dict(dict(scn.to_dict(), faults=faults)),
+                               params=DEFAULTS, ecu_period=1e-3).signals)
+    h = run()
+    s = severity_at('leakage_growth', 0.6)
+    d = run([dict(at=0.6, fault='leakage_growth', severity=s)]) - h
+    assert exc.margin('leakage_growth', s) == pytest.approx(
+        (d @ d) / (exc.kappa * exc.rss0), rel=1e-9)
+    m = len(d) // 3
+    before = np.concatenate([np.arange(k * m, k * m + 600) for k in range(3)])
+    assert not np.any(exc.signature('leakage_growth', s)[before])
+    assert np.any(exc.signature('leakage_growth', s))
+    from_start = Excitation(scn, free=()).detection_limit('static_friction')
+    assert exc.detection_limit('static_friction') > 3 * from_start
+
+
 RAMP = dict(name='ramp', duration=2.0, com={'ramp': [[0, 0], [0.05, 0], [1.95, 0.001]]},
             fr=[[0.0, 0.0], [0.02, 5000.0]])
 
@@ -170,3 +193,8 @@ def test_diagnose_limits_prints_each_fault(tmp_path, capsys):
     by = {x['fault']: x for x in data['limits']}
     assert by['static_friction']['detects_mild'] is False
     assert by['supply_loss']['detects_mild'] is True
+    assert main(['diagnose', '--limits', 'paper', '--onset-at', '0.6', '--faults',
+                 'static_friction', '--json', str(tmp_path / 'l6.json')]) == 0
+    late = yaml.safe_load((tmp_path / 'l6.json').read_text())
+    assert late['onset'] == 0.6
+    assert late['limits'][0]['limit'] > 3 * by['static_friction']['limit']
