@@ -7,7 +7,9 @@ one core, and what a user waits for around it.
 2. Start-up of one CLI process, interleaved rounds, medians: ``python -c "import numpy,
    numba"`` (the floor of any numba program), the same plus one call of a trivial cached
    numba function (numba's own first-call set-up), ``servovalve-twin simulate --valve-model C2``
-   with a warm cache, and the first-ever call (an empty numba cache: everything compiles).
+   with the loops compiled ahead of time (:mod:`servovalve_twin.aot`; an empty numba cache),
+   with the JIT's warm cache, and the JIT's first-ever call (an empty numba cache: everything
+   compiles).
 3. SQ's step cost over C2's, and C2 read by three noisy sensors over C2 with ideal ones,
    interleaved in one process (small ratios need one run).
 4. Units per second of a fleet (``simulate_many``, 3 and 8 units) over the same units run one
@@ -143,13 +145,20 @@ def startup(rounds: int) -> None:
                                                             'import numpy, numba']),
         'a trivial cached numba function, first call': lambda i: _wall([sys.executable,
                                                                          trivial]),
-        'servovalve-twin simulate --valve-model C2 (warm cache)': lambda i: _wall(
-            [exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, f'w{i}.csv')]),
-        'the same, first ever (empty numba cache: compiles)': lambda i: _wall(
+        'servovalve-twin simulate --valve-model C2 (loops compiled ahead of time)':
+            lambda i: _wall([exe, 'simulate', '--valve-model', 'C2', '--out',
+                             os.path.join(tmp, f'a{i}.csv')],
+                            env=dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, f'aot{i}'))),
+        'the same with the JIT (warm numba cache)': lambda i: _wall(
+            [exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, f'w{i}.csv')],
+            env=dict(os.environ, SERVOVALVE_TWIN_JIT='1')),
+        'the same with the JIT, first ever (empty numba cache: compiles)': lambda i: _wall(
             [exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, f'f{i}.csv')],
-            env=dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, f'cache{i}'))),
+            env=dict(os.environ, SERVOVALVE_TWIN_JIT='1',
+                     NUMBA_CACHE_DIR=os.path.join(tmp, f'cache{i}'))),
     }
-    _wall([exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, 'x.csv')])
+    _wall([exe, 'simulate', '--valve-model', 'C2', '--out', os.path.join(tmp, 'x.csv')],
+          env=dict(os.environ, SERVOVALVE_TWIN_JIT='1'))
     times = {k: [] for k in cases}
     for i in range(rounds):                       # interleaved: drift hits every line alike
         for k, fn in cases.items():

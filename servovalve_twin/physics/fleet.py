@@ -31,8 +31,16 @@ from .valves import get_valve_model
 MAX_UNITS = 1024
 
 
-@functools.lru_cache(maxsize=None)
 def run_fleet_for(model_id: int):
+    """The fleet loop of the valve model with registry id ``model_id``: compiled ahead of time
+    where the module of the current physics is built (:mod:`servovalve_twin.aot`), else
+    :func:`jit_run_fleet_for`'s."""
+    from ..aot import aot_loop
+    return aot_loop('fleet', model_id) or jit_run_fleet_for(model_id)
+
+
+@functools.lru_cache(maxsize=None)
+def jit_run_fleet_for(model_id: int):
     """The fleet loop of the valve model with registry id ``model_id`` (a closure constant,
     as :func:`~.plant.run_steps_for`'s; the arithmetic of each unit's step is that loop's, in
     the same order)."""
@@ -179,4 +187,4 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
     return results
 
 
-__all__ = ['simulate_many', 'run_fleet_for', 'MAX_UNITS']
+__all__ = ['simulate_many', 'run_fleet_for', 'jit_run_fleet_for', 'MAX_UNITS']

@@ -63,8 +63,16 @@ def plant_step(model_id, s, vs, P, cor, fr, psr, integrate):
     return p12, qj
 
 
-@functools.lru_cache(maxsize=None)
 def run_steps_for(model_id: int, sensed: bool = False):
+    """The step loop of the valve model with registry ``id`` = ``model_id``: compiled ahead of
+    time where the module of the current physics is built (:mod:`servovalve_twin.aot`), else
+    :func:`jit_run_steps_for`'s -- the same source, the same bytes out (tested)."""
+    from ..aot import aot_loop
+    return aot_loop('steps', model_id, sensed) or jit_run_steps_for(model_id, sensed)
+
+
+@functools.lru_cache(maxsize=None)
+def jit_run_steps_for(model_id: int, sensed: bool = False):
     """The step loop of the valve model with registry ``id`` = ``model_id`` (built once per
     model and process, its machine code loaded from numba's disk cache); ``sensed``: the loop
     with sensors (:mod:`.sensors`), whose ECU reads the measured XJ -- a loop of its own, so

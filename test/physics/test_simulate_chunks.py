@@ -51,7 +51,7 @@ def test_fault_applies_from_the_first_step_at_or_after_its_time():
 _PROBE = r'''
 import hashlib, json, sys
 from servovalve_twin.runs import simulate
-from servovalve_twin.physics.plant import run_steps_for
+from servovalve_twin.physics.plant import jit_run_steps_for as run_steps_for
 from servovalve_twin.physics.valves import get_valve_model
 r = simulate(sys.argv[1], 'defaults')
 loop = run_steps_for(get_valve_model(sys.argv[1]).id, False)    # the loop without sensors
@@ -68,7 +68,7 @@ def test_a_second_process_loads_each_models_step_loop_from_the_disk_cache(tmp_pa
     HD on one cache directory, so that a cache keyed without the id (the closures share their
     name and code) would hand C2's machine code to HD: each process's P12 must be that of
     this process's own run of the model."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'numba'))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / 'numba'), SERVOVALVE_TWIN_JIT='1')
     runs = []
     for model in ('C2', 'HD', 'C2', 'HD'):
         out = subprocess.run([sys.executable, '-c', _PROBE, model], env=env, check=True,
@@ -119,8 +119,8 @@ def test_each_loop_has_its_own_cache_files():
     code in files of their own: sharing one index, two processes compiling two of them at
     once could give both codes one data file, and the index one loop another's code (numba
     names the data file from the index it read and checks nothing on loading)."""
-    from servovalve_twin.physics.fleet import run_fleet_for
-    from servovalve_twin.physics.plant import run_steps_for
+    from servovalve_twin.physics.fleet import jit_run_fleet_for as run_fleet_for
+    from servovalve_twin.physics.plant import jit_run_steps_for as run_steps_for
     from servovalve_twin.physics.valves import VALVE_MODELS
     loops = [run_steps_for(m.id, sensed) for m in VALVE_MODELS.values()
              for sensed in (False, True)] + [run_fleet_for(m.id) for m in VALVE_MODELS.values()]

@@ -1,0 +1,142 @@
+"""The step loops compiled ahead of time: ``python -m servovalve_twin.aot`` (``scripts/setup``
+runs it after installing) builds one extension module holding every valve model's loops
+(:func:`~.physics.plant.run_steps_for`, without and with sensors, and the fleet's
+:func:`~.physics.fleet.run_fleet_for`) with numba's ahead-of-time compiler and gcc, so that a process runs a loop without compiling it or loading numba's cache.
+
+The module is named after the physics stamp (:func:`~.jitcache.physics_stamp`, a digest of every
+source of the compiled physics): after any edit of the physics its name no longer matches, it
+is not loaded, and the loops come from the JIT again -- which stays the fallback (a machine
+without the module, a ``colcon build`` tree, the FMU) and the reference: the same Python
+source compiled by the same numba, and a test holds the two to the same bytes.
+``SERVOVALVE_TWIN_JIT=1`` in the environment uses the JIT even where the module exists.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import importlib
+import os
+import sys
+from pathlib import Path
+
+from .jitcache import physics_stamp
+
+#: where the module is built and looked for: beside this file (an editable install's source
+#: tree, or site-packages)
+PACKAGE_DIR = Path(__file__).resolve().parent
+PREFIX = '_aot_loops_'
+
+
+def module_name() -> str:
+    """The module's name for the physics as they are now."""
+    return PREFIX + physics_stamp().hex()[:16]
+
+
+#: the loops compiled: (kind, sensor variants)
+KINDS = {'steps': (False, True), 'fleet': (False,)}
+
+
+def export_name(kind: str, model_id: int, sensed: bool = False) -> str:
+    return f'run_{kind}_m{model_id}' + ('_sensed' if sensed else '')
+
+
+@functools.lru_cache(maxsize=None)
+def _module():
+    """The compiled module of the current physics, or None (not built, stale, or the JIT
+    asked for)."""
+    if os.environ.get('SERVOVALVE_TWIN_JIT'):
+        return None
+    try:
+        return importlib.import_module(f'{__package__}.{module_name()}')
+    except ImportError:
+        return None
+
+
+def aot_loop(kind: str, model_id: int, sensed: bool = False):
+    """The compiled loop (``kind`` 'steps' or 'fleet') of a valve model, or None where the JIT
+    must serve."""
+    mod = _module()
+    return None if mod is None else getattr(mod, export_name(kind, model_id, sensed), None)
+
+
+def loop_signature(kind: str, model_id: int, sensed: bool = False):
+    """The numba signature of a model's loop: the types of the arguments
+    :func:`~.physics.simulate.simulate` (``kind`` 'steps') or
+    :func:`~.physics.fleet.simulate_many` ('fleet') pass, built here as they build them."""
+    import numpy as np
+    from numba import typeof
+
+    from .physics.params import DEFAULTS
+    from .physics.plant import OUT_COLUMNS, TRUTH_COLUMNS
+    from .physics.sensors import SENSED, sensor_table
+    from .physics.servovalve import S_SIZE
+    from .physics.valves import VALVE_MODELS
+    model = next(m for m in VALVE_MODELS.values() if m.id == model_id)
+    inputs = np.zeros((3, 8))[:, :4]            # simulate's input rows: views of one buffer
+    kern = np.concatenate([model.kernel_array(DEFAULTS)])
+    if kind == 'fleet':
+        args = (np.zeros((2, S_SIZE)), np.stack([model.initial_state(DEFAULTS)] * 2),
+                np.empty((2, 1), dtype=kern.dtype), np.zeros((2, 1), dtype=np.int64),
+                inputs[0], inputs[1], inputs[2], 0, 0, 0, 0, np.zeros((2, 2)),
+                np.zeros((2, 2, len(OUT_COLUMNS))), 1e-3, np.zeros(2, dtype=np.int64))
+        return typeof(0)(*(typeof(a) for a in args))
+    spec, keys = sensor_table(None, 1, DEFAULTS.DT)
+    args = (np.zeros(S_SIZE), model.initial_state(DEFAULTS),
+            kern, np.zeros(1, dtype=np.int64),
+            inputs[0], inputs[1], inputs[2], 0, 0, 0, 0, np.zeros(2),
+            np.zeros((2, len(OUT_COLUMNS) + (len(TRUTH_COLUMNS) if sensed else 0))), 1e-3,
+            spec, keys, np.zeros(len(SENSED)), 0)
+    return typeof(0)(*(typeof(a) for a in args))
+
+
+def build(dest: Path = PACKAGE_DIR, model_ids=None) -> Path:
+    """Compile the loops of ``model_ids`` (default every registered model) -- each kind of
+    :data:`KINDS`, in each variant -- into ``dest/<module_name()>``; earlier modules of this
+    builder there (other stamps) are removed. Returns the module's path."""
+    import warnings
+
+    from .physics.fleet import jit_run_fleet_for
+    from .physics.plant import jit_run_steps_for
+    from .physics.valves import VALVE_MODELS
+    ids = sorted(m.id for m in VALVE_MODELS.values()) if model_ids is None else model_ids
+    with warnings.catch_warnings():
+        # numba.pycc is marked for deprecation (since 0.57, still there in 0.68): used while it
+        # exists, the JIT serving where it does not
+        warnings.simplefilter('ignore')
+        from numba.pycc import CC
+    cc = CC(module_name())
+    cc.output_dir = str(dest)
+    cc.verbose = False
+    jit = {'steps': jit_run_steps_for, 'fleet': lambda mid, sensed: jit_run_fleet_for(mid)}
+    for mid in ids:
+        for kind, variants in KINDS.items():
+            for sensed in variants:
+                cc.export(export_name(kind, mid, sensed), loop_signature(kind, mid, sensed))(
+                    jit[kind](mid, sensed).py_func)
+    cc.compile()
+    built = next(dest.glob(module_name() + '.*'))
+    for old in dest.glob(PREFIX + '*'):
+        if old.name.split('.')[0] != module_name():
+            old.unlink()
+    _module.cache_clear()
+    return built
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog='python -m servovalve_twin.aot', description=__doc__.split(
+        '\n\n')[0])
+    ap.add_argument('--dest', type=Path, default=PACKAGE_DIR,
+                    help='the directory of the module (default the package)')
+    ap.add_argument('--if-missing', action='store_true',
+                    help='build only if the module of the current physics is not there')
+    args = ap.parse_args(argv)
+    if args.if_missing and any(args.dest.glob(module_name() + '.*')):
+        return 0
+    path = build(args.dest)
+    print(f'compiled the step loops into {path}', file=sys.stderr)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
