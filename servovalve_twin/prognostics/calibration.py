@@ -161,8 +161,8 @@ def calibration_jobs(units: int, seed: int) -> list[tuple]:
     return jobs
 
 
-#: a fit whose own 95 % interval is within +-0.1 in ``g`` (``se`` <= 0.05) pins its severity:
-#: its error is the model's bias and spread. A wider one is a flat likelihood (static friction
+#: a fit whose own 95 % interval is within about +-0.2 in ``g`` (``se`` <= 0.1) pins its
+#: severity: its error is the model's bias and spread. A wider one is a flat likelihood (static friction
 #: of 7-16 x on the built-in test: estimates off by up to 1.1 in g, se ~0.35), whose error is
 #: its own interval's to hold, widened (``k``), not a spread to put on every unit
 SE_PINNED = 0.1
@@ -254,9 +254,10 @@ def fit_calibration(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     verdict), estimate, se (in g), rms (of the right hypothesis' fit) and scenario. Per fault,
     pooled over the scenarios, a constant bias and the spread (``faults``); per calibration
     scenario with at least :data:`SCENARIO_UNITS` named units of a fault, a bias linear in the
-    estimate and its spread (``by_scenario``): the model-form error depends on the excitation
-    and, on the built-in test, on the severity (static friction read 20 % low at the mild
-    severity, 17 % high at the alarm one: measured); the rms quantiles."""
+    estimate -- a kernel mean over it on a scenario of :data:`EXTRA_UNITS` -- and its spread
+    (``by_scenario``): the model-form error depends on the excitation and, on the built-in
+    test, on the severity (static friction read ~20 % low up to ~5 x, 10-25 % high at the
+    alarm 20 x: measured); the rms quantiles."""
     out: dict[str, Any] = {'faults': _fit_faults(records, shape='constant')}
     out['by_scenario'] = {}
     for scen in sorted({r['scenario'] for r in records if r.get('scenario')}):

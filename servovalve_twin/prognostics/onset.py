@@ -2,8 +2,9 @@
 
 Each single-fault hypothesis is refitted with the fault starting at instants of the window --
 a coarse grid, and the instants around the change point of its from-start fit against the
-healthy one (:func:`change_point`) -- and the best one's instant refined by golden section
-(:func:`fit_onset`)."""
+healthy one (:func:`change_point`) -- the best one's instant refined by golden section and
+tried by every hypothesis (an onset's cost can be a few ms wide), and the verdict's refined in
+turn (:func:`fit_onset`)."""
 
 from __future__ import annotations
 
