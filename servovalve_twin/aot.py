@@ -1,7 +1,9 @@
 """The step loops compiled ahead of time: ``python -m servovalve_twin.aot`` (``scripts/setup``
 runs it after installing) builds one extension module holding every valve model's loops
 (:func:`~.physics.plant.run_steps_for`, without and with sensors, and the fleet's
-:func:`~.physics.fleet.run_fleet_for`) with numba's ahead-of-time compiler and gcc, so that a process runs a loop without compiling it or loading numba's cache.
+:func:`~.physics.fleet.run_fleet_for`) with numba's ahead-of-time compiler and gcc, so that a
+process runs a loop without compiling it or loading numba's cache. A plain ``pip install``
+(not editable) runs it once the same way; the module then goes beside the installed package.
 
 The module is named after the physics stamp (:func:`~.jitcache.physics_stamp`, a digest of every
 source of the compiled physics): after any edit of the physics its name no longer matches, it

@@ -162,9 +162,10 @@ def calibration_jobs(units: int, seed: int) -> list[tuple]:
 
 
 #: a fit whose own 95 % interval is within about +-0.2 in ``g`` (``se`` <= 0.1) pins its
-#: severity: its error is the model's bias and spread. A wider one is a flat likelihood (static friction
-#: of 7-16 x on the built-in test: estimates off by up to 1.1 in g, se ~0.35), whose error is
-#: its own interval's to hold, widened (``k``), not a spread to put on every unit
+#: severity: its error is the model's bias and spread. A wider one is a flat likelihood
+#: (static friction of 7-16 x on the built-in test: estimates off by up to 1.1 in g, se
+#: ~0.35), whose error is its own interval's to hold, widened (``k``), not a spread to put on
+#: every unit
 SE_PINNED = 0.1
 #: the bandwidth in ``g`` of a bias that follows the estimate (a Gaussian kernel)
 BANDWIDTH = 0.3
@@ -355,4 +356,5 @@ def gof_p_value(cal: Mapping[str, Any], rms: float) -> float:
 
 
 __all__ = ['calibration_jobs', 'fit_calibration', 'fault_calibration', 'bias_at', 'unit_signals',
-           'sensor_warnings', 'spread_of', 'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at', 'to_g', 'from_g']
+           'sensor_warnings', 'spread_of', 'load_calibration', 'calibration_for', 'gof_p_value',
+           'severity_at', 'to_g', 'from_g']
