@@ -129,21 +129,20 @@ def main() -> None:
               f'{", ".join(other) or "-"} |')
     named = sum(r['named'] == r['fault'] for r in inside)
     # a miss is allowed only below the detection limit stated for its flight
-    from servovalve_twin.physics.faults import FAULTS
     from servovalve_twin.prognostics.excitation import detection_limits
-    limits = {sc: {x.fault: x.limit for x in detection_limits(SCENARIOS.get(sc, sc))}
+    limits = {sc: {x.fault: x for x in detection_limits(SCENARIOS.get(sc, sc))}
               for sc in scens}
     below = above = 0
     for r in inside:
         if r['fault'] == HEALTHY or r['named'] == r['fault']:
             continue
-        lim, h = limits[r['scen']][r['fault']], FAULTS[r['fault']].healthy
-        if lim is None or abs(r['truth'] - h) < abs(lim - h):
+        lim = limits[r['scen']][r['fault']]
+        if not lim.detects(r['truth']):
             below += 1
         else:
             above += 1
             print(f'missed above its stated limit: {r["fault"]} {r["truth"]:.4g} on {r["scen"]} '
-                  f'(limit {lim:.4g}): {r["named"]}')
+                  f'(limit {lim.limit:.4g}): {r["named"]}')
     print(f'\nmissed: {below} below the detection limit stated for their flight (diagnose '
           f'--limits), {above} above it; named right {named}/{len(inside) - below} of the units '
           f'above their limits ({named / (len(inside) - below):.1%})')

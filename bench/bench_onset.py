@@ -15,7 +15,6 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import unit_signals
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, diagnose
@@ -84,17 +83,16 @@ def main() -> None:
     # a miss is allowed only below the detection limit stated for a fault that begins when it
     # did (diagnose --limits paper --onset-at T)
     from servovalve_twin.prognostics.excitation import detection_limits
-    limits = {at: {x.fault: x.limit for x in detection_limits('paper', onset=at)}
+    limits = {at: {x.fault: x for x in detection_limits('paper', onset=at)}
               for at in sorted({r['at'] for r in misses})}
     below = 0
     for r in misses:
         lim = limits[r['at']][r['fault']]
-        h = FAULTS[r['fault']].healthy
-        under = lim is None or abs(r['truth'] - h) < abs(lim - h)
+        under = not lim.detects(r['truth'])
         below += under
         print(f'not named: {r["fault"]} q {r["q"]} from {r["at"]} s: {r["named"]} (limit for '
-              f'a fault from {r["at"]} s: {lim if lim is None else round(lim, 4)}; '
-              f'{"below" if under else "above"} it)')
+              f'a fault from {r["at"]} s: {lim.limit if lim.limit is None else round(lim.limit, 4)}'
+              f'; {"below" if under else "above"} it)')
     print(f'missed: {below} below the detection limit stated for a fault from its onset, '
           f'{len(misses) - below} above it')
     for r in res:

@@ -197,12 +197,15 @@ class Limit:
     resolution: float            # relative 90 % half-width at the mild severity
     margin: float                # detectability margin at the mild severity (>= 1: detected)
 
+    def detects(self, severity: float) -> bool:
+        """Whether ``severity`` lies at or beyond the limit (a fault below it may be called
+        healthy: the flight cannot show it)."""
+        h = FAULTS[self.fault].healthy
+        return self.limit is not None and abs(self.limit - h) <= abs(severity - h) + 1e-12
+
     @property
     def detects_mild(self) -> bool:
-        spec = FAULTS[self.fault]
-        if self.limit is None:
-            return False
-        return abs(self.limit - spec.healthy) <= abs(self.mild - spec.healthy) + 1e-12
+        return self.detects(self.mild)
 
     def to_json(self) -> dict[str, Any]:
         return dict(fault=self.fault, limit=self.limit, mild=self.mild,

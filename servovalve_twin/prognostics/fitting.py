@@ -215,7 +215,8 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
         # where it began, on a grid point; the cost may still have a valley between grid
         # points (static friction of 6 x on the built-in test: the cost 11 069 from 5.6 x up,
         # 7 369 at 4.7 x, the valley 10 % wide), so search the flat stretch finely
-        x1 = _flat_stretch_minimum(problem, faults[0], fun, to_run, starts, costs, sol.x)
+        x1 = _flat_stretch_minimum(problem, faults[0], fun, to_run, starts, costs, sol.x,
+                                   float(np.sum(sol.fun ** 2)))
         if x1 is not None:
             sol = solve(x1)
     return sol.x, sol.fun, sol.jac
@@ -228,13 +229,14 @@ FLAT_COST = 5e-3
 FLAT_RATIO, FLAT_SPLIT = 1.06, 64
 
 
-def _flat_stretch_minimum(problem, fault, fun, to_run, starts, costs, x):
+def _flat_stretch_minimum(problem, fault, fun, to_run, starts, costs, x, rss):
     """A better severity than ``x``'s on the start grid's flat stretch around the best start
     (the grid points within :data:`FLAT_COST` of its cost), searched from the grid point
     below the stretch to the one above it in steps of :data:`FLAT_RATIO` (a multiplier) or
     :data:`FLAT_SPLIT` of the range, the nuisance held at ``x``; None when the best start has
-    no flat neighbour (a bound, not a stretch) or no point is better. A stretch from the
-    healthy severity on is where the fault has no effect yet: searched from its far end only."""
+    no flat neighbour (a bound, not a stretch) or no point is better than ``x``'s ``rss``. A
+    stretch from the healthy severity on is where the fault has no effect yet: searched from
+    its far end only."""
     spec = FAULTS[fault]
     sev = np.array([s[0] for s in starts])
     order = np.argsort(sev)
@@ -260,7 +262,7 @@ def _flat_stretch_minimum(problem, fault, fun, to_run, starts, costs, x):
     problem.run_many([to_run(t) for t in tries])
     tcost = [float(np.sum(fun(t) ** 2)) for t in tries]
     i = int(np.argmin(tcost))
-    return tries[i] if tcost[i] < float(np.sum(fun(x) ** 2)) else None
+    return tries[i] if tcost[i] < rss else None
 
 
 def jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:

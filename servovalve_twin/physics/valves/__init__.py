@@ -82,9 +82,9 @@ class ValveModel:
     #: may serve as the monitor model (a fast simplified model; HD is the plant reference)
     monitor: bool = True
     #: runs faster per unit as a fleet (:func:`..fleet.simulate_many`) than alone: a step
-    #: whose latency chain is long (SQ's square roots: 1.34 x at 8 units, bench_physics)
-    #: gains from interleaved units; a short one kept in registers alone loses (C2: 0.74 x;
-    #: HD: 1.0 x). The fits run their batches as fleets for these models only
+    #: whose latency chain is long (SQ's square roots: 1.32 x at 3 and 8 units, bench_physics)
+    #: gains from interleaved units; a short one kept in registers alone loses (C2: 0.73 x;
+    #: HD: 0.90-1.02 x). The fits run their batches as fleets for these models only
     fleet_pays: bool = False
     #: params -> the kernel constants VC0.. this model reads (computed once, not per step)
     constants: Callable[[EhaParams], tuple[float, ...]] = _no_constants
