@@ -19,8 +19,6 @@ import functools
 import hashlib
 import os
 
-from numba import njit
-
 _PHYSICS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'physics')
 _THIS_FILE = os.path.abspath(__file__)
 
@@ -42,8 +40,14 @@ def physics_stamp() -> bytes:
     return h.digest()
 
 
-try:        # numba's cache classes: internal API, so a numba that renames them still works
-    from numba.core.caching import CompileResultCacheImpl, FunctionCache
+@functools.lru_cache(maxsize=None)
+def _physics_cache_class():
+    """numba's function cache keyed on the physics stamp, or None where this numba's cache
+    classes (internal API) are not where they were: ``cache=True`` then."""
+    try:
+        from numba.core.caching import CompileResultCacheImpl, FunctionCache
+    except ImportError:          # pragma: no cover - depends on the numba version
+        return None
 
     class _PhysicsCacheImpl(CompileResultCacheImpl):
         def __init__(self, py_func):
@@ -54,17 +58,71 @@ try:        # numba's cache classes: internal API, so a numba that renames them 
     class _PhysicsCache(FunctionCache):
         _impl_class = _PhysicsCacheImpl
 
-except ImportError:          # pragma: no cover - depends on the numba version
-    _PhysicsCache = None
+    return _PhysicsCache
+
+
+def _dispatcher(f, options):
+    """``njit(**options)(f)`` whose disk cache carries the physics stamp."""
+    from numba import njit
+    dispatcher = njit(**options)(f)
+    cache = _physics_cache_class()
+    try:
+        if cache is None:
+            dispatcher.enable_caching()
+        else:
+            # what cache=True does (Dispatcher.enable_caching), with the physics-wide stamp
+            dispatcher._cache = cache(dispatcher.py_func)
+    except RuntimeError:
+        # no place to key a cache on: the source file is gone (an FMU's resources, deleted
+        # by the importer after a run, while the module stays imported): compiled in memory
+        pass
+    return dispatcher
+
+
+class LazyJit:
+    """A compiled function whose numba dispatcher is made on first use, so that importing the
+    physics does not import numba (~0.11 s of a process; the loops compiled ahead of time,
+    :mod:`servovalve_twin.aot`, run without it).
+
+    First use is a call from Python, any dispatcher attribute (``compile``, ``signatures``,
+    ...), or numba compiling a function that calls this one: numba types a global or a closure
+    variable by its ``_numba_type_`` (the dispatcher's type, so the call is compiled as a call of
+    the dispatcher) and inlines an ``inline='always'`` callee from ``targetoptions`` and
+    ``py_func`` -- the attributes it reads from a dispatcher, here without making one.
+    """
+
+    def __init__(self, f, options):
+        self.py_func = f
+        self.targetoptions = dict(options)
+        self._dispatcher = None
+        functools.update_wrapper(self, f)
+
+    @property
+    def dispatcher(self):
+        if self._dispatcher is None:
+            self._dispatcher = _dispatcher(self.py_func, self.targetoptions)
+        return self._dispatcher
+
+    @property
+    def _numba_type_(self):
+        return self.dispatcher._numba_type_
+
+    def __call__(self, *args, **kwargs):
+        return self.dispatcher(*args, **kwargs)
+
+    def __getattr__(self, name):
+        # only for names this class does not have: the dispatcher's own (compile, overloads, ..)
+        if name.startswith('__') or name == '_dispatcher':
+            raise AttributeError(name)
+        return getattr(self.dispatcher, name)
+
+    def __repr__(self):
+        return f'<LazyJit {self.py_func.__qualname__}>'
 
 
 def jit(fn=None, **options):
-    """``@jit`` or ``@jit(inline='always')``: ``njit`` cached on disk under the physics stamp."""
+    """``@jit`` or ``@jit(inline='always')``: ``njit`` cached on disk under the physics stamp,
+    made on first use (:class:`LazyJit`)."""
     def wrap(f):
-        if _PhysicsCache is None:
-            return njit(cache=True, **options)(f)
-        dispatcher = njit(**options)(f)
-        # what cache=True does (Dispatcher.enable_caching), with the physics-wide stamp
-        dispatcher._cache = _PhysicsCache(dispatcher.py_func)
-        return dispatcher
+        return LazyJit(f, options)
     return wrap if fn is None else wrap(fn)

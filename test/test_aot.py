@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -105,3 +106,27 @@ def test_the_signature_is_the_one_simulate_calls_with(monkeypatch):
     simulate_many('C2', paper, [DEFAULTS, DEFAULTS], ecu_period=1e-3)
     sigs = jit_run_fleet_for(mid).signatures
     assert sigs and all(tuple(sig) == aot.loop_signature('fleet', mid).args for sig in sigs)
+
+
+@pytest.mark.slow
+def test_a_run_on_the_compiled_loops_imports_no_numba(built):
+    """A process that simulates on the compiled loops never imports numba (its import alone
+    is ~0.1 s of start-up) and gives the JIT's bytes: a decorator that made its dispatcher at
+    import, or a loop still dispatched through the JIT, would import it."""
+    import hashlib
+    import subprocess
+    script = f'''
+import hashlib, importlib, sys
+sys.path.insert(0, {str(Path(built.__file__).parent)!r})
+from servovalve_twin import aot
+mod = importlib.import_module(aot.module_name())
+aot._module = lambda: mod
+from servovalve_twin.runs import simulate
+r = simulate('C2', 'paper', ecu_period=1e-3)
+print('numba' in sys.modules, hashlib.sha256(r['xj'].tobytes() + r['p12'].tobytes()).hexdigest())
+'''
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         check=True).stdout.split()
+    want = simulate('C2', 'paper', ecu_period=1e-3)
+    assert out == ['False', hashlib.sha256(want['xj'].tobytes() + want['p12'].tobytes())
+                   .hexdigest()]

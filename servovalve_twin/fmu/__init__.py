@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Mapping
@@ -91,8 +92,18 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
         req.write_text(_requirements())
         carried = _carry_package(tmp)
         # built beside the target, then moved into place: a failed build leaves no file
-        built = FmuBuilder.build_FMU(script, dest=tmp / out.name,
-                                     project_files=[cfg, req, carried])
+        before = set(sys.modules)
+        try:
+            built = FmuBuilder.build_FMU(script, dest=tmp / out.name,
+                                         project_files=[cfg, req, carried])
+        finally:
+            # the builder imports the slave, and with it the carried copy, from this temporary
+            # directory: forgotten here, so that an FMU run later in this process imports its
+            # own resources, not files that are about to be deleted (numba would find no
+            # source to key its cache on)
+            for name in set(sys.modules) - before:
+                if name == SLAVE_MODULE or name.split('.')[0] == CARRIED_AS:
+                    del sys.modules[name]
         place_new(built, out)
     return out
 
