@@ -3,10 +3,12 @@
 :mod:`servovalve_twin.prognostics.calibration`).
 
 Every unit of the calibration set (seeded: --seed) is diagnosed with SQ against the design,
-without the model-form term, once with M and CJ free and once without; the per-fault bias and
-spread and the goodness-of-fit reference are fitted to the results. Runs in a process pool.
+without the model-form term, once with M and CJ free and once without; so are the onset units,
+with the onset fitted; the per-fault bias and spread and the goodness-of-fit reference are
+fitted to the results. Runs in a process pool.
 
     .venv/bin/python bench/calibrate_diagnosis.py [--units 4] [--seed 7] [--out FILE]
+        [--onset-units 12] [--refit | --onset-only]
 """
 
 import argparse
@@ -19,8 +21,10 @@ from concurrent.futures import ProcessPoolExecutor
 
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_FILE, LEVELS,
-                                                     EXTRA_UNITS, NOISE, VARY, calibration_jobs,
-                                                     fit_calibration, to_g, unit_signals)
+                                                     EXTRA_UNITS, NOISE, ONSET_UNITS,
+                                                     ONSET_WINDOW, VARY, calibration_jobs,
+                                                     fit_calibration, onset_jobs, to_g,
+                                                     unit_signals)
 from servovalve_twin.prognostics.diagnosis import HEALTHY, diagnose
 
 FREE_SETS = (('CJ', 'M'), ())
@@ -50,6 +54,27 @@ def one(job):
                        scenario=scen) for free in FREE_SETS}
 
 
+def one_onset(job):
+    """An onset unit (calibration.onset_jobs), diagnosed with the onset fitted."""
+    fault, q, scen, seed, at = job
+    sig, truth, _ = unit_signals(fault, q, CAL_SCENARIOS[scen], seed, spread=SPREAD, onset=at)
+    out = {}
+    for free in FREE_SETS:
+        d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=free,
+                     model_form=False, onset=True)
+        out[free] = dict(record(d, fault, truth), scenario='onset', onset=at, refitted=bool(
+            d.onset and not d.onset.get('from_start')))
+    return out
+
+
+def _keyed(results):
+    return [{json.dumps(list(k)): v for k, v in r.items()} for r in results]
+
+
+def _unkeyed(kept):
+    return [{tuple(json.loads(k)): v for k, v in r.items()} for r in kept]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--units', type=int, default=4, help='units per fault, level, scenario')
@@ -57,39 +82,54 @@ def main() -> None:
     ap.add_argument('--out', default=str(CALIBRATION_FILE))
     ap.add_argument('--records', default='out/calibration_records.json',
                     help='where the diagnosed units are kept (the expensive part)')
+    ap.add_argument('--onset-units', type=int, default=ONSET_UNITS,
+                    help='onset units per fault (calibration.onset_jobs)')
     ap.add_argument('--refit', action='store_true',
                     help='fit the calibration again from --records, diagnosing nothing')
+    ap.add_argument('--onset-only', action='store_true',
+                    help='diagnose the onset units only, the other units taken from --records')
     args = ap.parse_args()
     jobs = calibration_jobs(args.units, args.seed)
+    ojobs = onset_jobs(args.onset_units, args.seed)
     t0 = time.perf_counter()
-    if args.refit:
+    kept = {}
+    if args.refit or args.onset_only:
         with open(args.records, encoding='utf-8') as fh:
             kept = json.load(fh)
         if kept['jobs'] != [list(j) for j in jobs]:
             sys.exit(f'{args.records} holds another calibration set (units, seed or scenarios '
                      'differ); run without --refit')
-        # (records kept before the scenario was recorded in them: it is the job's)
-        results = [{tuple(json.loads(k)): dict(v, scenario=job[2]) for k, v in r.items()}
-                   for job, r in zip(jobs, kept['results'])]
-    else:
+        if args.refit and kept.get('onset_jobs') != [list(j) for j in ojobs]:
+            sys.exit(f'{args.records} holds other onset units; run with --onset-only')
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         unit_signals(None, 0.0, 'paper', 0)             # compile in the parent, not per worker
-        with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        if kept:
+            # (records kept before the scenario was recorded in them: it is the job's)
+            results = [{k: dict(v, scenario=job[2]) for k, v in r.items()}
+                       for job, r in zip(jobs, _unkeyed(kept['results']))]
+        else:
             results = list(pool.map(one, jobs, chunksize=2))
+        onsets = (_unkeyed(kept['onset_results']) if args.refit else
+                  list(pool.map(one_onset, ojobs)))
+    if not args.refit:
         os.makedirs(os.path.dirname(args.records) or '.', exist_ok=True)
         with open(args.records, 'w', encoding='utf-8') as fh:
-            json.dump(dict(jobs=jobs, results=[{json.dumps(list(k)): v for k, v in r.items()}
-                                               for r in results]), fh)
+            json.dump(dict(jobs=jobs, results=_keyed(results), onset_jobs=ojobs,
+                           onset_results=_keyed(onsets)), fh)
     out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units, extra_units=EXTRA_UNITS,
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
-                          spread=SPREAD,
-                          noise=NOISE, noise_gain='log-uniform 0.5-2', diagnoses=len(jobs)))
+                          spread=SPREAD, onset_units=args.onset_units,
+                          onset_window=list(ONSET_WINDOW),
+                          noise=NOISE, noise_gain='log-uniform 0.5-2',
+                          diagnoses=len(jobs) + len(ojobs)))
     for free in FREE_SETS:
-        out[f'SQ/{",".join(free)}'] = fit_calibration([r[free] for r in results])
+        out[f'SQ/{",".join(free)}'] = fit_calibration([r[free] for r in results],
+                                                      [r[free] for r in onsets])
     with open(args.out, 'w', encoding='utf-8') as fh:
         json.dump(out, fh, indent=1, sort_keys=True)
         fh.write('\n')
-    print(f'{len(jobs)} units x {len(FREE_SETS)} diagnoses in {time.perf_counter() - t0:.0f} s '
-          f'-> {args.out}', file=sys.stderr)
+    print(f'{len(jobs)} units and {len(ojobs)} onset units x {len(FREE_SETS)} diagnoses in '
+          f'{time.perf_counter() - t0:.0f} s -> {args.out}', file=sys.stderr)
     for key in (k for k in out if k != 'about'):
         print(key)
         for f, c in out[key]['faults'].items():

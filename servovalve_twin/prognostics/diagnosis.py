@@ -88,6 +88,8 @@ DETECTABLE = 0.2
 #: how much lower (better) a pair's score must be than each of its two single faults' to be
 #: reported: "very strong" evidence on Kass and Raftery's BIC scale
 PAIR_EVIDENCE = 10.0
+#: the calibration entry of answers refitted at an onset (:data:`.calibration.ONSET_UNITS`)
+ONSET_ENTRY = 'onset'
 #: severities per fault of a pair's start grid
 PAIR_GRID = 5
 #: without --pairs, a pair of the verdict's fault and another that beats the verdict by
@@ -159,10 +161,13 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         bounds = []
     from .onset import fit_onset
     onset_fit = fit_onset(problem, candidates, n, n_eff) if onset else None
-    if onset_fit is not None:
+    # an onset refitted the verdict at it (not when the fit from the start stands and only
+    # when the fault began is in doubt)
+    refitted = onset_fit is not None and not onset_fit.get('from_start')
+    if refitted:
         best, bounds = candidates[0], ['']
     # (the bootstrap refits faults present from the start: not an onset's)
-    if bootstrap and best.fault != HEALTHY and onset_fit is None:
+    if bootstrap and best.fault != HEALTHY and not refitted:
         boot = bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
@@ -184,7 +189,9 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                           + ' (the fit does not change beyond it: only a flight that excites '
                           'it more can pin it)')
     if model_form:
-        _apply_model_form(d, free, scenario)
+        # an answer refitted at an onset has an error of its own (the fault seen over part of
+        # the window, its instant estimated): the calibration's onset units set its spread
+        _apply_model_form(d, free, ONSET_ENTRY if refitted else scenario)
     return d
 
 
@@ -339,6 +346,7 @@ def _apply_model_form(d: Diagnosis, free: Sequence[str], scenario: str | None = 
     best.interval = ivs[0] if len(ivs) == 1 else ivs
     d.confidence = 0.9
     d.interval_counts = 'measurement noise and the model-form error calibrated against HD' + (
+        ' for a fault that began mid-flight' if d.calibration_scenario == ONSET_ENTRY else
         f' on this flight ({d.calibration_scenario})' if d.calibration_scenario else '')
 
 

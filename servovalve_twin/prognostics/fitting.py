@@ -170,10 +170,11 @@ def effective_n(res: np.ndarray, n_signals: int) -> float:
 
 def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
          recorded: Mapping[str, np.ndarray] | None = None,
-         starts: Sequence[Sequence[float]] | None = None):
+         starts: Sequence[Sequence[float]] | None = None, onset: float | None = None):
     """Least squares over the faults' severities + nuisance factors; returns (x, residuals,
     jacobian). ``starts``: candidate start points, the best of which is refined (default: a
-    coarse grid of a single fault's severity, nuisance at design values)."""
+    coarse grid of a single fault's severity, nuisance at design values). ``onset``: the
+    (single) fault begins at this run time [s] instead of from the start."""
     from scipy.optimize import least_squares
     specs = [FAULTS[f] for f in faults]
     nf = len(specs)
@@ -182,11 +183,15 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
 
     def to_run(x):
         fr = {k: float(v) for k, v in zip(free, x[nf:])}
+        if onset is not None:
+            return problem.params((), [], fr), ((onset, faults[0], float(x[0])),)
         return problem.params(faults, [float(v) for v in x[:nf]], fr), ()
 
     def fun(x):
         return problem.residuals(problem.run(*to_run(x)), recorded)
 
+    if onset is not None and nf != 1:
+        raise ValueError('an onset is fitted for one fault')
     if not lo:                                   # healthy, nothing free: no fit to make
         return np.zeros(0), fun(np.zeros(0)), np.zeros((len(problem.rows) * 3, 0))
     if starts is None:

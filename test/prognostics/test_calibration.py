@@ -210,6 +210,43 @@ def test_the_extra_units_leave_the_first_ones_and_spread_between_the_levels():
     assert len(set(extra)) > len(extra) // 2
 
 
+def test_the_onset_entry_comes_from_refitted_onset_units_and_nothing_else():
+    """Onset units whose answer was refitted at an onset (error -0.2 in g) give the entry
+    ``by_scenario['onset']``; those that kept the from-start fit (error +0.5) are left out of
+    it, and no onset unit moves the pooled or a scenario's entry."""
+    rng = np.random.default_rng(8)
+
+    def unit(e, **kw):
+        truth = float(np.exp(rng.uniform(0.5, 2.0)))
+        return dict(fault='leakage_growth', truth=truth, named='leakage_growth',
+                    estimate=truth * math.exp(e + rng.normal(0.0, 0.01)), se=0.0, rms=1.0,
+                    **kw)
+    rec = [unit(0.0, scenario='paper') for _ in range(50)]
+    onset = ([unit(-0.2, scenario='onset', refitted=True) for _ in range(30)]
+             + [unit(0.5, scenario='onset', refitted=False) for _ in range(30)])
+    cal = fit_calibration(rec, onset)
+    own = cal['by_scenario']['onset']['leakage_growth']
+    assert own['units'] == 30 and own['bias'] == pytest.approx(-0.2, abs=0.01)
+    assert own['sigma'] < 0.05
+    plain = fit_calibration(rec)
+    assert cal['faults'] == plain['faults']
+    assert cal['by_scenario']['paper'] == plain['by_scenario']['paper']
+    assert 'onset' not in plain['by_scenario']
+
+
+def test_onset_units_draw_severities_and_onsets_of_their_own():
+    """The onset units: every diagnosable fault per round, severities between the levels,
+    onsets inside the window, seeds apart from the calibration set's and in sequence."""
+    jobs = calibration.onset_jobs(3, 7)
+    assert len(jobs) == 3 * len(DIAGNOSABLE)
+    assert [j[0] for j in jobs[:len(DIAGNOSABLE)]] == list(DIAGNOSABLE)
+    lo, hi = calibration.ONSET_WINDOW
+    assert all(LEVELS[0] <= j[1] <= 1.0 and lo <= j[4] <= hi for j in jobs)
+    assert len({j[4] for j in jobs}) == len(jobs)
+    seeds = {j[3] for j in calibration.calibration_jobs(4, 7)}
+    assert not seeds & {j[3] for j in jobs}
+
+
 def test_a_bag_is_matched_to_its_calibration_scenario_by_its_inputs():
     from servovalve_twin.apps.diagnose import calibration_scenario
     from servovalve_twin.bag.provenance import Provenance
