@@ -1,0 +1,89 @@
+"""servovalve_twin.bag.storages: an MCAP file's messages in log-time order, chunk by chunk where
+the chunks follow each other in time, through the mcap library's merge where they overlap --
+each checked against the mcap library's own log-time reader on files written by its writer."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from servovalve_twin.bag import storages
+from servovalve_twin.bag.cdr import encode_float64_value
+from servovalve_twin.bag.storages import McapStorage
+from servovalve_twin.errors import BagError
+
+
+def _write(path, chunks, compression=CompressionType.NONE):
+    """An MCAP file with one chunk per list of (topic, log time) in ``chunks``, in that
+    order, each message's value its index in the file."""
+    with open(path, 'wb') as fh:
+        w = Writer(fh, chunk_size=1 << 30, compression=compression)
+        w.start(profile='ros2', library='test')
+        sid = w.register_schema('std_msgs/msg/Float64', 'ros2msg', b'float64 data')
+        cids = {}
+        k = 0
+        for chunk in chunks:
+            for topic, t in chunk:
+                if topic not in cids:
+                    cids[topic] = w.register_channel(topic, 'cdr', sid)
+                w.add_message(cids[topic], t, encode_float64_value(float(k)), t)
+                k += 1
+            w.flush()                   # the chunk ends here
+        w.finish()
+    return path
+
+
+def _library(path, keep=None, start=None, end=None):
+    with open(path, 'rb') as fh:
+        return [(ch.topic, m.log_time, bytes(m.data)) for _, ch, m in make_reader(
+            fh, validate_crcs=True).iter_messages(
+                topics=None if keep is None else sorted(keep), log_time_order=True,
+                starting_at=start, ending_at=end)]
+
+
+@pytest.mark.parametrize('compression', [CompressionType.NONE, CompressionType.ZSTD,
+                                         CompressionType.LZ4])
+def test_chunks_in_time_order_are_read_in_log_time_order(tmp_path, compression):
+    """Three chunks following each other in time (two sharing an instant at their seam), the
+    middle one's messages out of order with equal times among them: the fast path's order
+    is the library's (times sorted, ties in file order), whole and filtered by topic and
+    time. A file-order reader, or an unstable sort, would differ."""
+    f = _write(tmp_path / 'a.mcap', [
+        [('/a', 10), ('/b', 10), ('/a', 20)],
+        [('/b', 40), ('/a', 25), ('/b', 20 + 10), ('/a', 30), ('/b', 20)],
+        [('/a', 40), ('/b', 50)]], compression)
+    with open(f, 'rb') as fh:
+        assert storages._chunks_in_time_order(make_reader(fh).get_summary().chunk_indexes)
+    got = list(McapStorage().messages(f, None, None, None))
+    assert [t for _, t, _ in got] == [10, 10, 20, 20, 25, 30, 30, 40, 40, 50]
+    assert got == _library(f)
+    assert list(McapStorage().messages(f, {'/b'}, 20, 40)) == _library(f, {'/b'}, 20, 40)
+
+
+def test_overlapping_chunks_go_through_the_merge(tmp_path, monkeypatch):
+    """Chunks whose times overlap are not read chunk by chunk (that order would be wrong):
+    the library's merge gives them in log-time order."""
+    f = _write(tmp_path / 'b.mcap', [[('/a', 0), ('/a', 50)], [('/a', 10), ('/a', 60)]])
+    with open(f, 'rb') as fh:
+        assert not storages._chunks_in_time_order(make_reader(fh).get_summary().chunk_indexes)
+    got = list(McapStorage().messages(f, None, None, None))
+    assert [t for _, t, _ in got] == [0, 10, 50, 60] and got == _library(f)
+
+
+def test_a_message_outside_its_chunks_stated_time_is_corrupt(tmp_path, monkeypatch):
+    """A chunk index that claims a later start than its chunk's first message (a damaged
+    summary) would put that message out of order: refused as corrupt, not read."""
+    f = _write(tmp_path / 'c.mcap', [[('/a', 0), ('/a', 5)], [('/a', 10), ('/a', 20)]])
+    real = storages._in_chunk_order
+
+    def lying(fh, summary, *args):
+        first = min(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        summary.chunk_indexes[summary.chunk_indexes.index(first)] = dataclasses.replace(
+            first, message_start_time=3)
+        return real(fh, summary, *args)
+    monkeypatch.setattr(storages, '_in_chunk_order', lying)
+    with pytest.raises(BagError, match='corrupt'):
+        list(McapStorage().messages(f, None, None, None))
