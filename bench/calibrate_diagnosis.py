@@ -116,7 +116,8 @@ def main() -> None:
         with open(args.records, 'w', encoding='utf-8') as fh:
             json.dump(dict(jobs=jobs, results=_keyed(results), onset_jobs=ojobs,
                            onset_results=_keyed(onsets)), fh)
-    out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units, extra_units=EXTRA_UNITS,
+    out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units,
+                          extra_units=EXTRA_UNITS,
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
                           spread=SPREAD, onset_units=args.onset_units,
                           onset_window=list(ONSET_WINDOW),

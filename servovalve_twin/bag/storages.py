@@ -224,6 +224,9 @@ def _in_chunk_order(fh, summary, keep, start_ns, end_ns, topics_out):
             op, length = _RECORD_HEAD.unpack_from(data, pos)
             pos += 9
             if op == _OP_MESSAGE:
+                if length < _MESSAGE_HEAD.size:
+                    raise ValueError(f'a message record of {length} bytes, shorter than its '
+                                     'head')
                 cid, _, t, _ = _MESSAGE_HEAD.unpack_from(data, pos)
                 if cid not in channels:
                     raise KeyError(f'message on channel {cid}, which the file does not define')

@@ -384,6 +384,6 @@ def gof_p_value(cal: Mapping[str, Any], rms: float) -> float:
     return (worse + 1) / (len(ref) + 1)
 
 
-__all__ = ['calibration_jobs', 'onset_jobs', 'fit_calibration', 'fault_calibration', 'bias_at', 'unit_signals',
-           'sensor_warnings', 'spread_of', 'load_calibration', 'calibration_for', 'gof_p_value',
-           'severity_at', 'to_g', 'from_g']
+__all__ = ['calibration_jobs', 'onset_jobs', 'fit_calibration', 'fault_calibration', 'bias_at',
+           'unit_signals', 'sensor_warnings', 'spread_of', 'load_calibration', 'calibration_for',
+           'gof_p_value', 'severity_at', 'to_g', 'from_g']

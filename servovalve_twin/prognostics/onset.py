@@ -149,8 +149,10 @@ def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: floa
     start by PAIR_EVIDENCE in BIC (tau, and the severity too against healthy, are parameters
     more); the taus whose RSS stays within the 95 % likelihood-ratio limit are its interval,
     ``identifiable`` when it is at most :data:`ONSET_PINNED` wide.
-    The onset candidate is then moved to the front as the verdict, with its severity and
-    Jacobian interval at tau. About 100 model runs per hypothesis."""
+    The onset candidate is then moved to the front as the verdict, its severity refitted at
+    tau jointly with the free nuisance, with its Jacobian interval. Where no onset beats the
+    fit from the start, :func:`_from_start` says whether the start is pinned. About 100
+    model runs per hypothesis."""
     singles = [c for c in candidates if len(c.faults) == 1]
     if not singles:
         return None
