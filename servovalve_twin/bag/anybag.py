@@ -76,14 +76,19 @@ class AnyBag:
             yield from streams[0]
             return
         # files are time-ordered splits, but merging costs nothing and survives overlaps;
-        # the file index breaks ties so that equal times keep file order
-        tagged = ([(t, i, n, topic, data) for n, (topic, t, data) in enumerate(s)]
-                  for i, s in enumerate(streams))
-        for t, _, _, topic, data in heapq.merge(*tagged):
+        # the file index breaks ties so that equal times keep file order. Each file is
+        # pulled as the merge needs it (a list per file held every message of the bag)
+        for t, _, _, topic, data in heapq.merge(*(_tagged(s, i) for i, s in enumerate(streams))):
             yield topic, t, data
 
     def topics_of_type(self, type_name: str) -> list[str]:
         return [name for name, info in self.topics.items() if info.type == type_name]
+
+
+def _tagged(stream, i: int):
+    """A file's messages as (log time, file index, position, topic, data), lazily."""
+    for n, (topic, t, data) in enumerate(stream):
+        yield t, i, n, topic, data
 
 
 def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:

@@ -79,6 +79,30 @@ def test_read_bag_reads_every_layout(layouts, name):
         assert run.valve_model == 'HD' and run.control_period == 1e-3
 
 
+@pytest.mark.parametrize('name', ['mcap-split', 'sqlite3-split'])
+def test_a_split_bag_is_merged_as_it_is_read(layouts, name, monkeypatch):
+    """The files of a split bag are merged lazily: the first messages come out having pulled
+    a few from each file, not every file whole (a bag's memory would grow with it); and in
+    log-time order, ties in file order."""
+    from servovalve_twin.bag.anybag import open_any_bag
+    bags, msgs, _ = layouts
+    bag = open_any_bag(bags[name][0])
+    pulled = []
+    real = bag.reader.messages
+
+    def counting(f, *a, **k):
+        for m in real(f, *a, **k):
+            pulled.append(f)
+            yield m
+    monkeypatch.setattr(bag.reader, 'messages', counting)
+    it = bag.messages()
+    first = [next(it) for _ in range(5)]
+    assert len(bag.files) > 1 and len(pulled) <= 5 + len(bag.files)
+    rest = list(it)
+    times = [t for _, t, _ in first + rest]
+    assert times == sorted(times) and len(times) == len(msgs)
+
+
 @pytest.mark.parametrize('name', LAYOUTS)
 def test_compare_evaluate_diagnose_prognose_reindex(layouts, name, tmp_path, capsys):
     bags, msgs, xj = layouts
