@@ -64,6 +64,121 @@ def error_metrics(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray],
     return out
 
 
+class _Window:
+    """One window's running error sums per signal: rows in [a, b) ms, and the row at b ms
+    apart (counted only if b turns out to be the last common row: a closed last window)."""
+
+    def __init__(self, a: int, b: int | None):
+        self.a, self.b = a, b
+        self.sums: dict[str, list[float]] = {}        # signal -> [sum of squares, max, n]
+        self.at_end: dict[str, float] = {}
+
+    def add(self, ms: np.ndarray, sig: str, err: np.ndarray) -> None:
+        inside = (ms >= self.a) if self.b is None else (ms >= self.a) & (ms < self.b)
+        e = err[inside]
+        if e.size:
+            acc = self.sums.setdefault(sig, [0.0, 0.0, 0])
+            acc[0] += float(np.dot(e, e))
+            acc[1] = max(acc[1], float(np.max(np.abs(e))))
+            acc[2] += int(e.size)
+        if self.b is not None:
+            hit = np.flatnonzero(ms == self.b)
+            if hit.size:
+                self.at_end[sig] = float(err[hit[0]])
+
+    def result(self, end_ms: int) -> dict[str, dict[str, float]]:
+        row = {}
+        for sig in dict.fromkeys(list(self.sums) + list(self.at_end)):
+            ssq, mx, n = self.sums.get(sig, [0.0, 0.0, 0])
+            if self.b == end_ms and sig in self.at_end:
+                e = self.at_end[sig]
+                ssq, mx, n = ssq + e * e, max(mx, abs(e)), n + 1
+            if n:
+                row[sig] = dict(rms=math.sqrt(ssq / n), max=mx, n=n)
+        return row
+
+
+def _aligned(ref_blocks, run_blocks):
+    """Rows of two block streams at their common whole-ms times, block by block: each side's
+    rows are held only until the other side has passed them."""
+    pend = [None, None]
+    streams = [iter(ref_blocks), iter(run_blocks)]
+    done = [False, False]
+
+    def take(i):
+        for _, rows in streams[i]:
+            ms = np.rint(rows['t'] * 1000).astype(np.int64)
+            rows = dict(rows, ms=ms)
+            pend[i] = rows if pend[i] is None else {
+                k: np.concatenate([pend[i][k], v]) for k, v in rows.items()}
+            return
+        done[i] = True
+
+    while True:
+        for i in (0, 1):
+            if not done[i] and (pend[i] is None or not pend[i]['ms'].size):
+                take(i)
+        if any(pend[i] is None or not pend[i]['ms'].size for i in (0, 1)):
+            if all(done):
+                return
+            if any(done[i] and (pend[i] is None or not pend[i]['ms'].size) for i in (0, 1)):
+                # one side is over: nothing more is common; read the other to its end (its
+                # end-of-bag checks)
+                for i in (0, 1):
+                    for _ in streams[i]:
+                        pass
+                return
+            continue
+        upto = min(pend[0]['ms'][-1], pend[1]['ms'][-1])
+        parts = []
+        for i in (0, 1):
+            k = int(np.searchsorted(pend[i]['ms'], upto, side='right'))
+            parts.append({c: v[:k] for c, v in pend[i].items()})
+            pend[i] = {c: v[k:] for c, v in pend[i].items()}
+        common, ia, ib = np.intersect1d(parts[0]['ms'], parts[1]['ms'], return_indices=True)
+        if common.size:
+            yield common, {c: v[ia] for c, v in parts[0].items()}, \
+                {c: v[ib] for c, v in parts[1].items()}
+
+
+def compare_bags(ref: str | Path, run: str | Path, windows: Mapping[str, tuple[float, float]],
+                 signals: Iterable[str] = COMPARED) -> dict[str, dict[str, dict[str, float]]]:
+    """:func:`check_same_inputs` and :func:`error_metrics` of two bags, read block by block
+    (:func:`~..bag.reader.iter_signal_blocks`): memory that does not grow with the bags. The
+    sums run block by block, so an RMS may differ from the whole-array one in its last
+    bits."""
+    from ..bag.reader import iter_signal_blocks
+    wins = {name: _Window(int(round(t0 * 1000)), int(round(t1 * 1000)))
+            for name, (t0, t1) in windows.items()}
+    whole = _Window(0, None)
+    first = last = None
+    n = 0
+    for ms, a, b in _aligned(iter_signal_blocks(ref), iter_signal_blocks(run)):
+        for sig in ('com', 'fr', 'psr'):
+            if sig in a and sig in b:
+                bad = np.nonzero(np.abs(a[sig] - b[sig])
+                                 > 1e-9 * np.maximum(1.0, np.abs(a[sig])))[0]
+                if bad.size:
+                    raise TwinError(f'the runs have different inputs: {sig} differs at t = '
+                                    f'{ms[bad[0]] * 1e-3:.3f} s ({a[sig][bad[0]]:g} vs '
+                                    f'{b[sig][bad[0]]:g})')
+        first = int(ms[0]) if first is None else first
+        last = int(ms[-1])
+        n += ms.size
+        for sig in signals:
+            if sig in a and sig in b:
+                err = b[sig] - a[sig]
+                whole.add(ms, sig, err)
+                for w in wins.values():
+                    w.add(ms, sig, err)
+    if n < 2:
+        raise TwinError('the two runs share fewer than two 1 ms samples: nothing to compare')
+    out = {'all': whole.result(last)}
+    for name, w in wins.items():
+        out[name] = w.result(last)
+    return out
+
+
 def exceeded(metrics: Mapping[str, Any], tolerances: Mapping[str, float]) -> list[str]:
     """Descriptions of every whole-run max error above its tolerance (signal -> SI value)."""
     bad = []
@@ -157,19 +272,61 @@ def load_run(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, tuple[f
     return run.signals, windows
 
 
+def is_table(path: str | Path) -> bool:
+    """A ``simulate`` CSV or Parquet table, not a bag."""
+    return Path(path).suffix in ('.csv', '.parquet')
+
+
+def bag_windows(path: str | Path) -> dict[str, tuple[float, float]]:
+    """:func:`load_run`'s windows of a bag without holding its signals: from its provenance's
+    scenario, else from its inputs read block by block."""
+    from ..bag.anybag import open_any_bag
+    from ..bag.reader import iter_signal_blocks
+    raw = open_any_bag(path, require_metadata=True).provenance.scenario
+    if raw is not None:
+        from ..physics.scenario import scenario_from_dict
+        scn = scenario_from_dict(raw)
+        return {**{f'phase{i + 1}': span for i, span in enumerate(scn.phases())},
+                **scn.windows}
+    cuts: set[float] = set()
+    prev: dict[str, float] = {}
+    t_first = t_last = None
+    for _, rows in iter_signal_blocks(path):
+        t = rows['t']
+        t_first = float(t[0]) if t_first is None else t_first
+        t_last = float(t[-1])
+        if len(cuts) <= 21:                     # more than 20 phases: none (as below)
+            _input_steps(rows, prev, cuts)
+    return _phases(cuts | {t_first, t_last})
+
+
+def _input_steps(rows: Mapping[str, np.ndarray], prev: dict[str, float], cuts: set) -> None:
+    """Add to ``cuts`` the times at which Com, FR or PSR step within ``rows`` or from
+    ``prev`` (each one's last value before them, updated)."""
+    t = np.asarray(rows['t'])
+    for sig in ('com', 'fr', 'psr'):
+        if sig in rows and len(rows[sig]):
+            v = np.asarray(rows[sig])
+            if sig in prev and v[0] != prev[sig]:
+                cuts.add(float(t[0]))
+            cuts.update(float(x) for x in t[1:][v[1:] != v[:-1]])
+            prev[sig] = v[-1]
+
+
+def _phases(cuts: set, max_phases: int = 20) -> dict[str, tuple[float, float]]:
+    if len(cuts) - 1 > max_phases:
+        return {}
+    cuts_sorted = sorted(cuts)
+    return {f'phase{i + 1}': (a, b) for i, (a, b) in enumerate(zip(cuts_sorted, cuts_sorted[1:]))}
+
+
 def _phases_from_inputs(signals: Mapping[str, np.ndarray], max_phases: int = 20
                         ) -> dict[str, tuple[float, float]]:
     """Phases split where Com, FR or PSR step (none for smoothly varying inputs)."""
     t = np.asarray(signals['t'])
     cuts = {float(t[0]), float(t[-1])}
-    for sig in ('com', 'fr', 'psr'):
-        if sig in signals:
-            v = np.asarray(signals[sig])
-            cuts.update(float(x) for x in t[1:][v[1:] != v[:-1]])
-    if len(cuts) - 1 > max_phases:
-        return {}
-    cuts_sorted = sorted(cuts)
-    return {f'phase{i + 1}': (a, b) for i, (a, b) in enumerate(zip(cuts_sorted, cuts_sorted[1:]))}
+    _input_steps(signals, {}, cuts)
+    return _phases(cuts, max_phases)
 
 
 def check_same_inputs(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray]) -> None:

@@ -137,14 +137,7 @@ def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
     arrays = float64_series(bag, counts=counts)
     if not arrays:
         raise BagError(f'bag {str(p)!r} holds no std_msgs/Float64 topics of the twin')
-    # the summary's counts are a claim (MCAP statistics carry no CRC of their own here):
-    # what was read must agree with it
-    claimed = {name: info.count for name, info in bag.topics.items() if info.count}
-    if claimed != counts:
-        bad = sorted(t for t in set(claimed) | set(counts) if claimed.get(t) != counts.get(t))
-        raise BagError(f'bag {str(p)!r} is corrupt: its summary counts {claimed.get(bad[0], 0)} '
-                       f'messages on {bad[0]} but it holds {counts.get(bad[0], 0)}; try: '
-                       f'servovalve-twin reindex {p}')
+    _check_counts(p, bag, counts)
     ns = bag.provenance.namespace
     if ns:      # a namespaced actuator's topics ('/left/xj') are the twin's signals
         arrays = {t[len(ns):]: v for t, v in arrays.items() if t.startswith(ns + '/')}
@@ -153,6 +146,90 @@ def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
                            f'namespace {ns}')
     return BagRun(path=p, signals=signal_table(arrays), topics=counts,
                   provenance=bag.provenance, series=arrays)
+
+
+#: Float64 messages held at most between two blocks of :func:`iter_signal_blocks` (~5 MB)
+BLOCK_MESSAGES = 1 << 16
+
+
+def iter_signal_blocks(path: str | Path, *, block_messages: int | None = None,
+                       require_metadata: bool = True):
+    """:func:`read_bag`'s 1 ms signal table in consecutive blocks of rows, read in memory that
+    does not grow with the bag: the same rows, the same checks (ticks on the control-period
+    grid, every-tick signals without a gap, the summary's counts -- after the last block).
+    Yields ``(bag, rows)``; ``rows`` holds every column the bag has, NaN-padded port
+    pressures included. A block ends at the log time of the message that filled it: every
+    message before that time has been read (log-time order), so its rows are complete."""
+    import bisect
+    block_messages = block_messages or BLOCK_MESSAGES
+    p = Path(path)
+    bag = open_any_bag(p, require_metadata=require_metadata)
+    # (a topic the summary counts no message on is none: the count is checked at the end)
+    f64 = {t for t in bag.topics_of_type(FLOAT64) if bag.topics[t].count}
+    ns = bag.provenance.namespace
+    mine = {t: t[len(ns):] if ns else t for t in f64 if not ns or t.startswith(ns + '/')}
+    if not any(name[1:] in CSV_COLUMNS[1:] for name in mine.values()):
+        raise BagError(f'bag {str(p)!r} holds no std_msgs/Float64 topics of the twin'
+                       + (f' under its namespace {ns}' if ns else ''))
+    period = bag.provenance.control_period
+    period_ns = int(round(period * 1e9)) if period else None
+    buf = {t: ([], []) for t in f64}
+    carry: dict[str, int] = {}
+    counts: dict[str, int] = {}
+
+    def emit(cut):
+        series = {}
+        for topic, (ts, vs) in buf.items():
+            k = len(ts) if cut is None else bisect.bisect_left(ts, cut)
+            t = np.array(ts[:k], dtype=np.int64)
+            v = np.array(vs[:k], dtype=float)
+            del ts[:k], vs[:k]
+            if period_ns and t.size:
+                # the tick check across blocks: the previous block's last tick leads this one
+                head = [carry[topic]] if topic in carry else []
+                check_ticks(p, {topic: (np.concatenate([head, t]).astype(np.int64), None)},
+                            period_ns)
+            if t.size:
+                carry[topic] = int(t[-1])
+            if topic in mine:
+                series[mine[topic]] = (t, v)
+        rows = signal_table(series)
+        return rows if rows['t'].size else None
+
+    held = 0
+    for topic, t_ns, data in bag.messages():
+        counts[topic] = counts.get(topic, 0) + 1
+        b = buf.get(topic)
+        if b is None:
+            continue
+        try:
+            value = decode_float64(data)
+        except ValueError as exc:
+            raise BagError(f'bag {str(p)!r} is corrupt: its message on {topic} at '
+                           f'{t_ns * 1e-9:.6f} s: {exc}') from None
+        b[0].append(t_ns)
+        b[1].append(value)
+        held += 1
+        if held >= block_messages:
+            rows = emit(t_ns)
+            held = sum(len(ts) for ts, _ in buf.values())
+            if rows is not None:
+                yield bag, rows
+    rows = emit(None)
+    if rows is not None:
+        yield bag, rows
+    _check_counts(p, bag, counts)
+
+
+def _check_counts(p: Path, bag: AnyBag, counts: dict[str, int]) -> None:
+    """The summary's counts are a claim (MCAP statistics carry no CRC of their own here):
+    what was read must agree with it."""
+    claimed = {name: info.count for name, info in bag.topics.items() if info.count}
+    if claimed != counts:
+        bad = sorted(t for t in set(claimed) | set(counts) if claimed.get(t) != counts.get(t))
+        raise BagError(f'bag {str(p)!r} is corrupt: its summary counts {claimed.get(bad[0], 0)} '
+                       f'messages on {bad[0]} but it holds {counts.get(bad[0], 0)}; try: '
+                       f'servovalve-twin reindex {p}')
 
 
 def mcap_path(path: str | Path) -> Path:
@@ -173,4 +250,5 @@ def mcap_path(path: str | Path) -> Path:
     return files[0]
 
 
-__all__ = ['BagRun', 'read_bag', 'float64_series', 'mcap_path', 'FLOAT64']
+__all__ = ['BagRun', 'read_bag', 'iter_signal_blocks', 'float64_series', 'mcap_path',
+           'FLOAT64']

@@ -24,17 +24,26 @@ class Compare(Command):
                             'cor; SI units) exceeds MAX (repeatable)')
 
     def main(self, args):
-        from ..apps.compare import (check_same_inputs, error_metrics, exceeded, format_table,
-                                    load_run, parse_tolerances, provenance_differences,
-                                    write_json)
+        from ..apps.compare import (bag_windows, check_same_inputs, compare_bags,
+                                    error_metrics, exceeded, format_table, is_table, load_run,
+                                    parse_tolerances, provenance_differences, write_json)
         from ..apps.plots import plot_overlay
         tolerances = parse_tolerances(args.tolerance)
-        ref, windows = load_run(args.ref)
-        run, _ = load_run(args.run)
+        # two bags are compared block by block, in memory that does not grow with them; a
+        # table, or a plot (which needs every row), reads the runs whole
+        streamed = not (args.plot or is_table(args.ref) or is_table(args.run))
+        if streamed:
+            windows = bag_windows(args.ref)
+        else:
+            ref, windows = load_run(args.ref)
+            run, _ = load_run(args.run)
         for line in provenance_differences(args.ref, args.run):
             print(f'servovalve-twin compare: warning: {line}', file=sys.stderr)
-        check_same_inputs(ref, run)
-        metrics = error_metrics(ref, run, windows)
+        if streamed:
+            metrics = compare_bags(args.ref, args.run, windows)
+        else:
+            check_same_inputs(ref, run)
+            metrics = error_metrics(ref, run, windows)
         print(f'{args.run} against {args.ref} (errors run - ref, RMS / max):')
         print(format_table(metrics))
         if args.json:

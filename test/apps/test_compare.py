@@ -1,0 +1,82 @@
+"""servovalve_twin.apps.compare: two bags compared block by block give the errors a hand
+computation gives (a known offset), the whole-array path's counts and maxima, its windows (from
+the provenance or, for a foreign bag, from the inputs), and refuse runs with other inputs."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from bagmaker import f64, reference_messages, write_bag
+from servovalve_twin.apps.compare import (bag_windows, compare_bags, error_metrics,
+                                          load_run)
+from servovalve_twin.bag import reader
+from servovalve_twin.errors import TwinError
+
+END_NS = 400_000_000
+OFFSET = {'/xj': 1e-6, '/p12': 250.0}
+
+
+def _bags(tmp_path, provenance=True, change=None):
+    """The packaged run cut to 0.4 s, and a copy whose /xj and /p12 carry a known offset
+    (``change``: a topic whose value is also changed from 0.2 s on)."""
+    msgs, record = reference_messages(END_NS)
+    out = []
+    for t, typ, ns, d in msgs:
+        if t in OFFSET:
+            d = f64(struct.unpack('<d', d[4:12])[0] + OFFSET[t])
+        if t == change and ns >= 200_000_000:
+            d = f64(struct.unpack('<d', d[4:12])[0] + 1.0)
+        out.append((t, typ, ns, d))
+    # the run also carries an algorithm's output every tick: its blocks end elsewhere than
+    # the reference's, so rows wait for the other side across block seams
+    out += [('/health/score', 'std_msgs/msg/Float64', ns, f64(0.0))
+            for t, _, ns, _ in msgs if t == '/xj']
+    out.sort(key=lambda m: m[2])
+    rec = record if provenance else None
+    write_bag(tmp_path / 'ref', msgs=msgs, provenance=rec)
+    write_bag(tmp_path / 'run', msgs=out, provenance=rec)
+    return tmp_path / 'ref', tmp_path / 'run'
+
+
+@pytest.mark.parametrize('provenance', [True, False])
+def test_two_bags_compared_in_blocks(tmp_path, monkeypatch, provenance):
+    """In blocks of 300 messages: the offset comes back as every window's RMS and max error
+    (hand value), XS and DXJ with none; counts and maxima equal the whole-array path's, the
+    RMS within rounding; the windows are load_run's (the scenario's, or the inputs' steps)."""
+    ref, run = _bags(tmp_path, provenance)
+    monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 300)
+    a, windows = load_run(ref)
+    b, _ = load_run(run)
+    assert bag_windows(ref) == windows and len(windows) >= 3
+    got = compare_bags(ref, run, windows)
+    want = error_metrics(a, b, windows)
+    assert list(got) == list(want)
+    for w, row in want.items():
+        assert list(got[w]) == list(row)
+        for sig, m in row.items():
+            assert got[w][sig]['n'] == m['n'] and got[w][sig]['max'] == m['max'], (w, sig)
+            assert got[w][sig]['rms'] == pytest.approx(m['rms'], rel=1e-12, abs=1e-300)
+        if row:                         # (a phase of the scenario after the cut: none)
+            assert got[w]['xj']['rms'] == pytest.approx(1e-6, rel=1e-9)
+            assert got[w]['p12']['max'] == pytest.approx(250.0, rel=1e-9)
+            assert got[w]['xs']['max'] == 0.0
+    assert got['all']['xj']['n'] == 401 and sum(1 for r in got.values() if r) >= 3
+
+
+def test_a_window_ending_at_the_end_holds_the_last_row(tmp_path, monkeypatch):
+    """[t0, t1) except the window that ends at the last row, which holds it: 100 rows from
+    0.1 to 0.2 s, 101 from 0.3 s to the end (0.4 s)."""
+    ref, run = _bags(tmp_path)
+    monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 250)
+    got = compare_bags(ref, run, {'mid': (0.1, 0.2), 'tail': (0.3, 0.4)})
+    assert got['mid']['xj']['n'] == 100 and got['tail']['xj']['n'] == 101
+
+
+def test_runs_with_other_inputs_are_refused(tmp_path, monkeypatch):
+    ref, run = _bags(tmp_path, change='/fr')
+    monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 300)
+    with pytest.raises(TwinError, match=r'fr differs at t = 0\.200 s'):
+        compare_bags(ref, run, {})
