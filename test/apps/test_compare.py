@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import struct
 
-import numpy as np
 import pytest
 
 from bagmaker import f64, reference_messages, write_bag
