@@ -128,7 +128,7 @@ def crc_of(fh, start: int, end: int) -> int:
     fh.seek(start)
     crc, left = 0, end - start
     while left > 0:
-        block = fh.read(min(left, 1 << 22))
+        block = fh.read(min(left, 1 << 20))
         if not block:
             break
         crc = zlib.crc32(block, crc)
@@ -179,14 +179,63 @@ def _topic_info(channel, schema) -> TopicInfo:
                      serialization_format=channel.message_encoding)
 
 
+def _lean_summary(fh):
+    """An MCAP file's summary section read record by record into the mcap library's
+    ``Summary`` -- statistics, schemas, channels, metadata indexes -- without its chunk
+    indexes, which the library keeps as one object per chunk (a 4 GB bag of 16 kB chunks:
+    ~300 MB); :func:`_chunk_indexes` streams them instead. None without a summary; its
+    ``start`` is the summary section's offset."""
+    from mcap.records import Channel, Footer, MetadataIndex, Schema, Statistics
+    from mcap.stream_reader import MAGIC_SIZE, StreamReader
+    from mcap.summary import Summary
+    fh.seek(0, 2)
+    fh.seek(fh.tell() - MAGIC_SIZE - 29)            # the footer: opcode, length, 20 bytes
+    footer = next(StreamReader(fh, skip_magic=True).records)
+    if not isinstance(footer, Footer):
+        raise ValueError('no footer at the end of the file')
+    if footer.summary_start == 0:
+        return None
+    fh.seek(footer.summary_start)
+    out = Summary()
+    out.start = footer.summary_start
+    for rec in StreamReader(fh, skip_magic=True).records:
+        if isinstance(rec, Statistics):
+            out.statistics = rec
+        elif isinstance(rec, Schema):
+            out.schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            out.channels[rec.id] = rec
+        elif isinstance(rec, MetadataIndex):
+            out.metadata_indexes.append(rec)
+        elif isinstance(rec, Footer):
+            break
+    return out
+
+
+def _chunk_indexes(f: Path, start: int):
+    """The summary section's chunk indexes one at a time, from their own handle on ``f``."""
+    from mcap.records import ChunkIndex, Footer
+    from mcap.stream_reader import StreamReader
+    with open(f, 'rb') as fh:
+        fh.seek(start)
+        for rec in StreamReader(fh, skip_magic=True).records:
+            if isinstance(rec, ChunkIndex):
+                yield rec
+            elif isinstance(rec, Footer):
+                return
+
+
 def _chunks_in_time_order(chunk_indexes) -> bool:
-    """The chunks, in file order, follow each other in time (each starts at or after the end
-    of the one before): what a recorder writes, and where log-time order is file order
-    within each chunk, chunk after chunk."""
-    if not chunk_indexes:
-        return False
-    order = sorted(chunk_indexes, key=lambda c: c.chunk_start_offset)
-    return all(b.message_start_time >= a.message_end_time for a, b in zip(order, order[1:]))
+    """The chunks, listed in file order, follow each other in time (each starts at or after
+    the end of the one before): what a recorder writes, and where log-time order is file
+    order within each chunk, chunk after chunk. Streams over ``chunk_indexes``."""
+    prev = None
+    for c in chunk_indexes:
+        if prev is not None and (c.chunk_start_offset <= prev.chunk_start_offset
+                                 or c.message_start_time < prev.message_end_time):
+            return False
+        prev = c
+    return prev is not None
 
 
 #: a message record's fixed head after the record's opcode and length: channel id, sequence,
@@ -196,7 +245,7 @@ _RECORD_HEAD = struct.Struct('<BQ')
 _OP_MESSAGE = 0x05
 
 
-def _in_chunk_order(fh, summary, keep, start_ns, end_ns, topics_out):
+def _in_chunk_order(fh, summary, chunk_indexes, keep, start_ns, end_ns, topics_out):
     """The messages of a file whose chunks follow each other in time, chunk by chunk, each
     chunk's in log-time order (a stable sort: equal times in file order) -- the order of the
     mcap library's log-time merge, which keeps every message in a Python heap (half the time
@@ -208,7 +257,7 @@ def _in_chunk_order(fh, summary, keep, start_ns, end_ns, topics_out):
     channels = summary.channels
     wanted = {cid for cid, ch in channels.items() if keep is None or ch.topic in keep}
     last = -1
-    for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+    for ci in chunk_indexes:
         if start_ns is not None and ci.message_end_time < start_ns:
             continue
         if end_ns is not None and ci.message_start_time > end_ns:
@@ -251,6 +300,26 @@ def _in_chunk_order(fh, summary, keep, start_ns, end_ns, topics_out):
             last = got[-1][0]
 
 
+def _metadata_records(fh):
+    """The file's Metadata records: at the summary's metadata indexes, else read through the
+    file (what the mcap library's ``iter_metadata`` does, without loading every chunk
+    index)."""
+    from mcap.reader import NonSeekingReader
+    from mcap.records import Metadata
+    from mcap.stream_reader import StreamReader
+    summary = _lean_summary(fh)
+    if summary is None:
+        fh.seek(0)
+        yield from NonSeekingReader(fh).iter_metadata()
+        return
+    for index in summary.metadata_indexes:
+        fh.seek(index.offset)
+        rec = next(StreamReader(fh, skip_magic=True).records)
+        if not isinstance(rec, Metadata):
+            raise ValueError(f'expected a metadata record at {index.offset}')
+        yield rec
+
+
 class McapStorage(Storage):
     """MCAP files, chunks uncompressed, zstd or lz4; chunk, summary and data CRCs checked."""
 
@@ -258,11 +327,10 @@ class McapStorage(Storage):
 
     def summary(self, f: Path) -> Summary:
         """From the summary's statistics when the file has them, else by reading it once."""
-        from mcap.reader import make_reader
         try:
             check_data_crc(f)
             with open(f, 'rb') as fh:
-                summary = make_reader(fh, validate_crcs=True).get_summary()
+                summary = _lean_summary(fh)
         except OSError as exc:
             raise BagError(f'cannot read {str(f)!r}: {exc.strerror}') from None
         except mcap_errors():
@@ -290,9 +358,11 @@ class McapStorage(Storage):
                 else:
                     span = dict(start_time=start_ns,
                                 end_time=None if end_ns is None else end_ns + 1)
-                summary = reader.get_summary()
-                if summary is not None and _chunks_in_time_order(summary.chunk_indexes):
-                    yield from _in_chunk_order(fh, summary, keep, start_ns, end_ns, topics_out)
+                summary = _lean_summary(fh)
+                if summary is not None and _chunks_in_time_order(
+                        _chunk_indexes(f, summary.start)):
+                    yield from _in_chunk_order(fh, summary, _chunk_indexes(f, summary.start),
+                                               keep, start_ns, end_ns, topics_out)
                     return
                 for schema, ch, msg in reader.iter_messages(
                         topics=None if keep is None else sorted(keep), log_time_order=True,
@@ -307,13 +377,12 @@ class McapStorage(Storage):
                            f'{str(exc)[:120]}); try: servovalve-twin reindex') from None
 
     def metadata(self, f: Path, *, checked: bool = False) -> dict[str, dict[str, str]]:
-        from mcap.reader import make_reader
         out: dict[str, dict[str, str]] = {}
         try:
             if not checked:                     # the data CRC streams over the whole file
                 check_data_crc(f)
             with open(f, 'rb') as fh:
-                for meta in make_reader(fh, validate_crcs=True).iter_metadata():
+                for meta in _metadata_records(fh):
                     out.setdefault(meta.name, dict(meta.metadata))
         except OSError as exc:
             raise BagError(f'cannot read bag {str(f)!r}: {exc.strerror}') from None

@@ -79,3 +79,34 @@ def test_runs_with_other_inputs_are_refused(tmp_path, monkeypatch):
     monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 300)
     with pytest.raises(TwinError, match=r'fr differs at t = 0\.200 s'):
         compare_bags(ref, run, {})
+
+
+def _long_bag(path, seconds):
+    """The 1 s reference run repeated ``seconds`` times end to end (512-byte chunks, as
+    bagmaker writes them: many chunk indexes)."""
+    msgs, record = reference_messages(1_000_000_000)
+    period = 1_001_000_000                      # the 1 s run has ticks 0..1000 ms
+    out = [(t, typ, ns + k * period, d) for k in range(seconds) for t, typ, ns, d in msgs]
+    write_bag(path, msgs=out, provenance=record)
+    return path
+
+
+@pytest.mark.slow
+def test_memory_does_not_grow_with_the_bags(tmp_path, monkeypatch):
+    """Two bags of 4 and of 16 s (48 k and 194 k messages) compared with themselves in blocks
+    of 5 000 messages: the peak of Python allocations (tracemalloc) the same within 1.5 MiB
+    (what is read in blocks of 1 MiB, the CRCs' and the blocks' own) -- where holding the rows
+    (~5 MB more) or the mcap library's summary (an object per 512-byte chunk: 32 MB more)
+    grew it. A first compare warms the process up (imports, caches)."""
+    import tracemalloc
+    monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 5000)
+    peaks = []
+    bags = {s: _long_bag(tmp_path / f'b{s}', s) for s in (4, 16)}
+    compare_bags(bags[4], bags[4], {})
+    for s, bag in bags.items():
+        tracemalloc.start()
+        got = compare_bags(bag, bag, {})
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        assert got['all']['xj']['n'] == 1001 * s and got['all']['xj']['max'] == 0.0
+    assert peaks[1] - peaks[0] < 1.5 * (1 << 20), peaks
