@@ -161,3 +161,13 @@ def _write_sqlite(f: Path, part, types, version, compression):
                     [(ids[topic], t, data) for topic, _, t, data in part])
     con.commit()
     con.close()
+
+
+def write_long_bag(path: Path, seconds: int) -> Path:
+    """The packaged 1 s run repeated ``seconds`` times end to end, with its provenance (512-byte
+    chunks, as :func:`write_bag` writes them: many chunk indexes)."""
+    msgs, record = reference_messages(1_000_000_000)
+    period = 1_001_000_000                      # the 1 s run has ticks 0..1000 ms
+    out = [(t, typ, ns + k * period, d) for k in range(seconds) for t, typ, ns, d in msgs]
+    write_bag(path, msgs=out, provenance=record)
+    return path

@@ -8,7 +8,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..bag.reader import read_bag
+from ..bag.reader import read_bag_until
 from ..errors import TwinError
 from ..outputs import output_path
 from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
@@ -63,7 +63,9 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     applies unless the bag says it was recorded with the fitted model itself (then exact). A
     bag without provenance, diagnosed without stated ``nominal`` parameters, is
     ``unexplained``: its design is not known, so no fault can be measured against it."""
-    run = read_bag(bag)
+    # only the rows up to the window's end are held (the rest is read and checked as it
+    # passes): a window of a long flight costs its own memory, not the flight's
+    run = read_bag_until(bag, None if window is None else window[1])
     design = bag_params(run)
     if nominal:
         design = design.replace(**nominal)

@@ -221,6 +221,25 @@ def iter_signal_blocks(path: str | Path, *, block_messages: int | None = None,
     _check_counts(p, bag, counts)
 
 
+def read_bag_until(path: str | Path, t_end: float | None) -> BagRun:
+    """:func:`read_bag`'s signal table holding only the rows up to ``t_end`` [s] (all when
+    None); the rest of the bag is still read and checked, block by block
+    (:func:`iter_signal_blocks`), in memory that does not grow with it. ``topics`` and
+    ``series`` stay empty (what a windowed diagnosis does not use)."""
+    if t_end is None:
+        return read_bag(path)
+    kept, bag = [], None
+    for bag, rows in iter_signal_blocks(path):
+        if rows['t'][0] <= t_end + 5e-4:            # (rows lie on whole milliseconds)
+            keep = rows['t'] <= t_end + 5e-4
+            kept.append({k: v[keep] for k, v in rows.items()})
+    if not kept:
+        raise BagError(f'bag {str(path)!r} holds no row of the twin\'s signals')
+    return BagRun(path=Path(path), signals={k: np.concatenate([b[k] for b in kept])
+                                            for k in kept[0]},
+                  topics={}, provenance=bag.provenance, series={})
+
+
 def _check_counts(p: Path, bag: AnyBag, counts: dict[str, int]) -> None:
     """The summary's counts are a claim (MCAP statistics carry no CRC of their own here):
     what was read must agree with it."""
@@ -250,5 +269,5 @@ def mcap_path(path: str | Path) -> Path:
     return files[0]
 
 
-__all__ = ['BagRun', 'read_bag', 'iter_signal_blocks', 'float64_series', 'mcap_path',
-           'FLOAT64']
+__all__ = ['BagRun', 'read_bag', 'read_bag_until', 'iter_signal_blocks', 'float64_series',
+           'mcap_path', 'FLOAT64']

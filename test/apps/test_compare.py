@@ -8,7 +8,7 @@ import struct
 
 import pytest
 
-from bagmaker import f64, reference_messages, write_bag
+from bagmaker import f64, reference_messages, write_bag, write_long_bag
 from servovalve_twin.apps.compare import (bag_windows, compare_bags, error_metrics,
                                           load_run)
 from servovalve_twin.bag import reader
@@ -81,16 +81,6 @@ def test_runs_with_other_inputs_are_refused(tmp_path, monkeypatch):
         compare_bags(ref, run, {})
 
 
-def _long_bag(path, seconds):
-    """The 1 s reference run repeated ``seconds`` times end to end (512-byte chunks, as
-    bagmaker writes them: many chunk indexes)."""
-    msgs, record = reference_messages(1_000_000_000)
-    period = 1_001_000_000                      # the 1 s run has ticks 0..1000 ms
-    out = [(t, typ, ns + k * period, d) for k in range(seconds) for t, typ, ns, d in msgs]
-    write_bag(path, msgs=out, provenance=record)
-    return path
-
-
 @pytest.mark.slow
 def test_memory_does_not_grow_with_the_bags(tmp_path, monkeypatch):
     """Two bags of 4 and of 16 s (48 k and 194 k messages) compared with themselves in blocks
@@ -101,7 +91,7 @@ def test_memory_does_not_grow_with_the_bags(tmp_path, monkeypatch):
     import tracemalloc
     monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 5000)
     peaks = []
-    bags = {s: _long_bag(tmp_path / f'b{s}', s) for s in (4, 16)}
+    bags = {s: write_long_bag(tmp_path / f'b{s}', s) for s in (4, 16)}
     compare_bags(bags[4], bags[4], {})
     for s, bag in bags.items():
         tracemalloc.start()
