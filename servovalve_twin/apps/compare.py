@@ -151,18 +151,10 @@ def compare_bags(ref: str | Path, run: str | Path, windows: Mapping[str, tuple[f
     wins = {name: _Window(int(round(t0 * 1000)), int(round(t1 * 1000)))
             for name, (t0, t1) in windows.items()}
     whole = _Window(0, None)
-    first = last = None
+    last = None
     n = 0
     for ms, a, b in _aligned(iter_signal_blocks(ref), iter_signal_blocks(run)):
-        for sig in ('com', 'fr', 'psr'):
-            if sig in a and sig in b:
-                bad = np.nonzero(np.abs(a[sig] - b[sig])
-                                 > 1e-9 * np.maximum(1.0, np.abs(a[sig])))[0]
-                if bad.size:
-                    raise TwinError(f'the runs have different inputs: {sig} differs at t = '
-                                    f'{ms[bad[0]] * 1e-3:.3f} s ({a[sig][bad[0]]:g} vs '
-                                    f'{b[sig][bad[0]]:g})')
-        first = int(ms[0]) if first is None else first
+        _same_inputs(a, b, ms * 1e-3)
         last = int(ms[-1])
         n += ms.size
         for sig in signals:
@@ -260,16 +252,21 @@ def load_run(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, tuple[f
         signals = read_table(p, require=('t', 'xj'))
         return signals, _phases_from_inputs(signals)
     run = read_bag(p)
-    windows: dict[str, tuple[float, float]] = {}
     raw = run.scenario()
-    if raw is not None:
-        from ..physics.scenario import scenario_from_dict
-        scn = scenario_from_dict(raw)
-        windows = {f'phase{i + 1}': span for i, span in enumerate(scn.phases())}
-        windows.update(scn.windows)
-    else:
-        windows = _phases_from_inputs(run.signals)
+    windows = _phases_from_inputs(run.signals) if raw is None else _scenario_windows(raw)
     return run.signals, windows
+
+
+def _scenario_windows(raw: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+    """The windows of a recorded scenario: its phases (split at every breakpoint) and its
+    named windows."""
+    from ..physics.scenario import scenario_from_dict
+    scn = scenario_from_dict(raw)
+    return {**{f'phase{i + 1}': span for i, span in enumerate(scn.phases())}, **scn.windows}
+
+
+#: more phases than this (smoothly varying inputs): no phase windows
+MAX_PHASES = 20
 
 
 def is_table(path: str | Path) -> bool:
@@ -284,10 +281,7 @@ def bag_windows(path: str | Path) -> dict[str, tuple[float, float]]:
     from ..bag.reader import iter_signal_blocks
     raw = open_any_bag(path, require_metadata=True).provenance.scenario
     if raw is not None:
-        from ..physics.scenario import scenario_from_dict
-        scn = scenario_from_dict(raw)
-        return {**{f'phase{i + 1}': span for i, span in enumerate(scn.phases())},
-                **scn.windows}
+        return _scenario_windows(raw)
     cuts: set[float] = set()
     prev: dict[str, float] = {}
     t_first = t_last = None
@@ -295,7 +289,7 @@ def bag_windows(path: str | Path) -> dict[str, tuple[float, float]]:
         t = rows['t']
         t_first = float(t[0]) if t_first is None else t_first
         t_last = float(t[-1])
-        if len(cuts) <= 21:                     # more than 20 phases: none (as below)
+        if len(cuts) <= MAX_PHASES + 1:         # more phases than that: none (_phases)
             _input_steps(rows, prev, cuts)
     return _phases(cuts | {t_first, t_last})
 
@@ -313,14 +307,14 @@ def _input_steps(rows: Mapping[str, np.ndarray], prev: dict[str, float], cuts: s
             prev[sig] = v[-1]
 
 
-def _phases(cuts: set, max_phases: int = 20) -> dict[str, tuple[float, float]]:
+def _phases(cuts: set, max_phases: int = MAX_PHASES) -> dict[str, tuple[float, float]]:
     if len(cuts) - 1 > max_phases:
         return {}
     cuts_sorted = sorted(cuts)
     return {f'phase{i + 1}': (a, b) for i, (a, b) in enumerate(zip(cuts_sorted, cuts_sorted[1:]))}
 
 
-def _phases_from_inputs(signals: Mapping[str, np.ndarray], max_phases: int = 20
+def _phases_from_inputs(signals: Mapping[str, np.ndarray], max_phases: int = MAX_PHASES
                         ) -> dict[str, tuple[float, float]]:
     """Phases split where Com, FR or PSR step (none for smoothly varying inputs)."""
     t = np.asarray(signals['t'])
@@ -332,9 +326,20 @@ def _phases_from_inputs(signals: Mapping[str, np.ndarray], max_phases: int = 20
 def check_same_inputs(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray]) -> None:
     """Two runs are comparable only if they were driven by the same Com, FR and PSR."""
     i_ref, i_run, t = align(ref, run)
-    for sig in ('com', 'fr', 'psr'):
+    _same_inputs({s: np.asarray(v)[i_ref] for s, v in ref.items() if s in INPUTS},
+                 {s: np.asarray(v)[i_run] for s, v in run.items() if s in INPUTS}, t)
+
+
+INPUTS = ('com', 'fr', 'psr')
+
+
+def _same_inputs(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray], t: np.ndarray
+                 ) -> None:
+    """Com, FR and PSR of two runs' aligned rows (times ``t`` [s]) agree to 1e-9 relative,
+    else one error line at the first row that differs."""
+    for sig in INPUTS:
         if sig in ref and sig in run:
-            a, b = np.asarray(ref[sig])[i_ref], np.asarray(run[sig])[i_run]
+            a, b = ref[sig], run[sig]
             bad = np.nonzero(np.abs(a - b) > 1e-9 * np.maximum(1.0, np.abs(a)))[0]
             if bad.size:
                 raise TwinError(f'the runs have different inputs: {sig} differs at t = '

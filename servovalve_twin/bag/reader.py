@@ -66,16 +66,21 @@ def float64_series(bag: AnyBag, topics=None, counts: dict[str, int] | None = Non
             counts[topic] = counts.get(topic, 0) + 1
         s = series.get(topic)
         if s is not None:
-            try:
-                s.append(t_ns, decode_float64(data))
-            except ValueError as exc:
-                raise BagError(f'bag {str(bag.path)!r} is corrupt: its message on {topic} at '
-                               f'{t_ns * 1e-9:.6f} s: {exc}') from None
+            s.append(t_ns, _value(bag.path, topic, t_ns, data))
     out = {k: s.arrays() for k, s in series.items() if s.n}
     period = bag.provenance.control_period
     if period:
         check_ticks(bag.path, out, int(round(period * 1e9)))
     return out
+
+
+def _value(path: Path, topic: str, t_ns: int, data: bytes) -> float:
+    """A Float64 message's value; CDR that does not decode is a corrupt bag."""
+    try:
+        return decode_float64(data)
+    except ValueError as exc:
+        raise BagError(f'bag {str(path)!r} is corrupt: its message on {topic} at '
+                       f'{t_ns * 1e-9:.6f} s: {exc}') from None
 
 
 class _Series:
@@ -202,13 +207,8 @@ def iter_signal_blocks(path: str | Path, *, block_messages: int | None = None,
         b = buf.get(topic)
         if b is None:
             continue
-        try:
-            value = decode_float64(data)
-        except ValueError as exc:
-            raise BagError(f'bag {str(p)!r} is corrupt: its message on {topic} at '
-                           f'{t_ns * 1e-9:.6f} s: {exc}') from None
         b[0].append(t_ns)
-        b[1].append(value)
+        b[1].append(_value(p, topic, t_ns, data))
         held += 1
         if held >= block_messages:
             rows = emit(t_ns)
