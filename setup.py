@@ -26,7 +26,7 @@ setup(
     install_requires=['setuptools', 'numpy', 'numba', 'pyyaml', 'mcap', 'zstandard', 'lz4',
                       'matplotlib', 'tqdm', 'pyarrow', 'scipy>=1.16'],
     # 'test': what the suite needs beyond the package (colcon test runs pytest when it is here)
-    extras_require={'foxglove': ['foxglove-sdk'], 'dask': ['dask[distributed]'],
+    extras_require={'foxglove': ['websockets'], 'dask': ['dask[distributed]'],
                     # servovalve_twin.progpy: the EHA as a NASA progpy PrognosticsModel
                     'progpy': ['progpy'],
                     # servovalve-twin fmu: an FMI 2.0 co-simulation FMU of the actuator

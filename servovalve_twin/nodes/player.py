@@ -327,7 +327,9 @@ def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None 
     live = None
     if foxglove is not None:
         from .live import FoxgloveLive
-        live = FoxgloveLive({t: bag.topics[t].type for t in player.pubs}, port=foxglove)
+        # block: the viewer gets every message, as a reliable subscriber does
+        live = FoxgloveLive({t: bag.topics[t].type for t in player.pubs}, port=foxglove,
+                            block=True)
         player.sinks.append(live.log)
     ex = SingleThreadedExecutor(context=context)
     ex.add_node(player)

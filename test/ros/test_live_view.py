@@ -1,52 +1,16 @@
 """The live view in the Foxglove app: a Foxglove WebSocket client connects to the twin (and to
 a bag being played), subscribes, and receives the exact CDR bytes that the bag records."""
 
-import asyncio
 import json
 import re
 import threading
 
-import pytest
-
 from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.twin import Twin
 from conftest import ROOT
+from foxclient import Client
 
 SHORT = {'duration': 0.05, 'com': [[0.0, 0.02]]}
-
-
-class Client(threading.Thread):
-    """A Foxglove WebSocket client in a thread: subscribes to ``topic`` and keeps the payloads
-    of the first ``n`` messages."""
-
-    def __init__(self, port, topic, n):
-        super().__init__(daemon=True)
-        self.port, self.topic, self.n = port, topic, n
-        self.payloads, self.stamps, self.schema = [], [], None
-        self.error = None
-
-    def run(self):
-        try:
-            asyncio.run(self._main())
-        except Exception as exc:  # noqa: BLE001 -- reported by the test
-            self.error = exc
-
-    async def _main(self):
-        import websockets
-        async with websockets.connect(f'ws://127.0.0.1:{self.port}',
-                                      subprotocols=['foxglove.sdk.v1']) as ws:
-            while len(self.payloads) < self.n:
-                m = await asyncio.wait_for(ws.recv(), 120)
-                if isinstance(m, str):
-                    msg = json.loads(m)
-                    for ch in msg.get('channels', []) if msg.get('op') == 'advertise' else []:
-                        if ch['topic'] == self.topic:
-                            self.schema = ch
-                            await ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [
-                                {'id': 7, 'channelId': ch['id']}]}))
-                elif m[0] == 1:           # message data: op, subscription id, time, payload
-                    self.stamps.append(int.from_bytes(m[5:13], 'little'))
-                    self.payloads.append(bytes(m[13:]))
 
 
 def test_a_foxglove_client_receives_the_twins_topics(ros_context, tmp_path):
@@ -56,14 +20,14 @@ def test_a_foxglove_client_receives_the_twins_topics(ros_context, tmp_path):
         assert twin.live.subscribed.wait(120), client.error
         twin.run()
     client.join(120)
-    assert client.error is None and len(client.payloads) == 51
+    assert client.error is None and len(client.got) == 51
     assert client.schema['encoding'] == 'cdr' and client.schema['schemaName'] == \
         'std_msgs/msg/Float64' and 'float64 data' in client.schema['schema']
     from mcap.reader import make_reader
     with open(tmp_path / 'b' / 'b_0.mcap', 'rb') as fh:
         recorded = [(m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages(
             topics=['/xj'], log_time_order=True)]
-    assert list(zip(client.stamps, client.payloads)) == recorded       # exact bytes, sim time
+    assert [(stamp, data) for _, stamp, data in client.got] == recorded       # exact bytes, sim time
 
 
 def test_play_serves_a_bag_to_foxglove(ros_context):
@@ -73,7 +37,7 @@ def test_play_serves_a_bag_to_foxglove(ros_context):
 
     def ready(player):           # start paused; resume once the client has subscribed
         holder['player'] = player
-    opts = PlayOptions(rate=50.0, topics=('/p12',), start_paused=True)
+    opts = PlayOptions(rate=1000.0, topics=('/p12',), start_paused=True)
     done = {}
 
     def run():
@@ -93,10 +57,10 @@ def test_play_serves_a_bag_to_foxglove(ros_context):
     player._set_paused(False)
     t.join(300)
     client.join(120)
-    assert client.error is None and len(client.payloads) == 1001
+    assert client.error is None and len(client.got) == 1001
     run_ = read_bag(ref)
     import struct
-    values = [struct.unpack('<d', p[4:])[0] for p in client.payloads]
+    values = [struct.unpack('<d', p[4:])[0] for _, _, p in client.got]
     assert values == run_.series['/p12'][1].tolist()
 
 
@@ -115,28 +79,3 @@ def _panels(node):
     if isinstance(node, str):
         return [node]
     return _panels(node['first']) + _panels(node['second'])
-
-
-def test_the_documented_client_subprotocols():
-    """doc/how-to/foxglove.md says which clients connect: those offering foxglove.sdk.v1 or
-    v1.1; one offering only foxglove.websocket.v1 is refused with HTTP 400. An upgrade of
-    foxglove-sdk that changes this fails here, so the page cannot go stale."""
-    import foxglove
-    import websockets
-    srv = foxglove.start_server(port=0)
-
-    async def offer(proto):
-        try:
-            async with websockets.connect(f'ws://127.0.0.1:{srv.port}',
-                                          subprotocols=[proto]) as ws:
-                return ws.subprotocol
-        except websockets.exceptions.InvalidStatus as exc:
-            return exc.response.status_code
-
-    try:
-        got = {p: asyncio.run(offer(p)) for p in ('foxglove.sdk.v1', 'foxglove.sdk.v1.1',
-                                                  'foxglove.websocket.v1')}
-    finally:
-        srv.stop()
-    assert got == {'foxglove.sdk.v1': 'foxglove.sdk.v1', 'foxglove.sdk.v1.1': 'foxglove.sdk.v1.1',
-                   'foxglove.websocket.v1': 400}
