@@ -199,17 +199,20 @@ def format_table(metrics: Mapping[str, Mapping[str, Mapping[str, float]]],
     return '\n'.join(lines)
 
 
+def json_ready(o: Any) -> Any:
+    """``o`` with NaN and infinities as None (JSON null: JSON has no such numbers)."""
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: json_ready(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [json_ready(v) for v in o]
+    return o
+
+
 def write_json(path: str | Path, payload: Any) -> None:
-    def clean(o):
-        if isinstance(o, float) and not math.isfinite(o):
-            return None
-        if isinstance(o, dict):
-            return {k: clean(v) for k, v in o.items()}
-        if isinstance(o, (list, tuple)):
-            return [clean(v) for v in o]
-        return o
     with output_file(path) as fh:                 # whole or absent
-        fh.write(json.dumps(clean(payload), indent=2) + '\n')
+        fh.write(json.dumps(json_ready(payload), indent=2) + '\n')
 
 
 def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:

@@ -157,6 +157,61 @@ def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
 BLOCK_MESSAGES = 1 << 16
 
 
+def iter_float64_blocks(bag: AnyBag, topics=None, *, counts: dict[str, int] | None = None,
+                        block_messages: int | None = None):
+    """:func:`float64_series` in consecutive blocks, in memory that does not grow with the bag:
+    yields ``{topic: (log times ns, values)}`` of every Float64 topic (or of ``topics`` among
+    them; arrays empty where a block has none) holding every message logged before the time of the one that filled the block --
+    all messages of one log time fall in one block (log-time order). The tick check runs
+    across blocks. ``counts``: read every topic and count each one's messages into it."""
+    import bisect
+    block_messages = block_messages or BLOCK_MESSAGES
+    p = bag.path
+    f64 = set(bag.topics_of_type(FLOAT64))
+    if topics is not None:
+        f64 &= set(topics)
+    period = bag.provenance.control_period
+    period_ns = int(round(period * 1e9)) if period else None
+    buf = {t: ([], []) for t in f64}
+    carry: dict[str, int] = {}
+
+    def emit(cut):
+        series = {}
+        for topic, (ts, vs) in buf.items():
+            k = len(ts) if cut is None else bisect.bisect_left(ts, cut)
+            t = np.array(ts[:k], dtype=np.int64)
+            v = np.array(vs[:k], dtype=float)
+            del ts[:k], vs[:k]
+            if period_ns and k:
+                # the tick check across blocks: the previous block's last tick leads this one
+                head = [carry[topic]] if topic in carry else []
+                check_ticks(p, {topic: (np.concatenate([head, t]).astype(np.int64), None)},
+                            period_ns)
+            if k:
+                carry[topic] = int(t[-1])
+            series[topic] = (t, v)          # every topic, empty ones too (a table's columns)
+        return series if any(t.size for t, _ in series.values()) else None
+
+    held = 0
+    for topic, t_ns, data in bag.messages(topics=None if counts is not None else f64):
+        if counts is not None:
+            counts[topic] = counts.get(topic, 0) + 1
+        b = buf.get(topic)
+        if b is None:
+            continue
+        b[0].append(t_ns)
+        b[1].append(_value(p, topic, t_ns, data))
+        held += 1
+        if held >= block_messages:
+            series = emit(t_ns)
+            held = sum(len(ts) for ts, _ in buf.values())
+            if series is not None:
+                yield series
+    series = emit(None)
+    if series is not None:
+        yield series
+
+
 def iter_signal_blocks(path: str | Path, *, block_messages: int | None = None,
                        require_metadata: bool = True):
     """:func:`read_bag`'s 1 ms signal table in consecutive blocks of rows, read in memory that
@@ -165,8 +220,6 @@ def iter_signal_blocks(path: str | Path, *, block_messages: int | None = None,
     Yields ``(bag, rows)``; ``rows`` holds every column the bag has, NaN-padded port
     pressures included. A block ends at the log time of the message that filled it: every
     message before that time has been read (log-time order), so its rows are complete."""
-    import bisect
-    block_messages = block_messages or BLOCK_MESSAGES
     p = Path(path)
     bag = open_any_bag(p, require_metadata=require_metadata)
     # (a topic the summary counts no message on is none: the count is checked at the end)
@@ -176,48 +229,11 @@ def iter_signal_blocks(path: str | Path, *, block_messages: int | None = None,
     if not any(name[1:] in CSV_COLUMNS[1:] for name in mine.values()):
         raise BagError(f'bag {str(p)!r} holds no std_msgs/Float64 topics of the twin'
                        + (f' under its namespace {ns}' if ns else ''))
-    period = bag.provenance.control_period
-    period_ns = int(round(period * 1e9)) if period else None
-    buf = {t: ([], []) for t in f64}
-    carry: dict[str, int] = {}
     counts: dict[str, int] = {}
-
-    def emit(cut):
-        series = {}
-        for topic, (ts, vs) in buf.items():
-            k = len(ts) if cut is None else bisect.bisect_left(ts, cut)
-            t = np.array(ts[:k], dtype=np.int64)
-            v = np.array(vs[:k], dtype=float)
-            del ts[:k], vs[:k]
-            if period_ns and t.size:
-                # the tick check across blocks: the previous block's last tick leads this one
-                head = [carry[topic]] if topic in carry else []
-                check_ticks(p, {topic: (np.concatenate([head, t]).astype(np.int64), None)},
-                            period_ns)
-            if t.size:
-                carry[topic] = int(t[-1])
-            if topic in mine:
-                series[mine[topic]] = (t, v)
-        rows = signal_table(series)
-        return rows if rows['t'].size else None
-
-    held = 0
-    for topic, t_ns, data in bag.messages():
-        counts[topic] = counts.get(topic, 0) + 1
-        b = buf.get(topic)
-        if b is None:
-            continue
-        b[0].append(t_ns)
-        b[1].append(_value(p, topic, t_ns, data))
-        held += 1
-        if held >= block_messages:
-            rows = emit(t_ns)
-            held = sum(len(ts) for ts, _ in buf.values())
-            if rows is not None:
-                yield bag, rows
-    rows = emit(None)
-    if rows is not None:
-        yield bag, rows
+    for series in iter_float64_blocks(bag, f64, counts=counts, block_messages=block_messages):
+        rows = signal_table({mine[t]: tv for t, tv in series.items() if t in mine})
+        if rows['t'].size:
+            yield bag, rows
     _check_counts(p, bag, counts)
 
 

@@ -27,15 +27,19 @@ class Evaluate(Command):
         p.add_argument('--json', metavar='FILE', help='outputs, levels and alarm times as JSON')
 
     def main(self, args):
-        from ..apps.compare import write_json
-        from ..apps.evaluate import evaluate, run_to_json
-        run = evaluate(args.bag, args.algorithm, algorithm_params(args))
-        payload = run_to_json(run, args.bag)
-        if args.json:
-            write_json(args.json, payload)
-        print(f'{run.title} on {args.bag}: {payload["ticks"]} ticks; first WARN '
-              f'{payload["first_warn"]} s, first ERROR {payload["first_error"]} s'
-              + ''.join(f'; peak {k} {max(v):.6g}' for k, v in payload['outputs'].items()))
+        from ..apps.evaluate import Evaluation, evaluate_blocks
+        # block by block: a bag of any length in the same memory (the JSON's columns wait in
+        # temporary files beside it)
+        alg, blocks = evaluate_blocks(args.bag, args.algorithm, algorithm_params(args))
+        ev = Evaluation(alg, args.bag, args.json)
+        try:
+            for block in blocks:
+                ev.add(block)
+            if args.json:
+                ev.write_json()
+        finally:
+            ev.close()
+        print(ev.line())
         return 0
 
 

@@ -196,6 +196,7 @@ class AlgorithmRunner:
         check_declaration(alg)
         self.alg = alg
         self.period = period
+        self._last = OK                      # the level of the last tick :meth:`block` ran
         try:
             alg.setup(period, nominal)
         except TwinError:
@@ -266,6 +267,18 @@ class AlgorithmRunner:
                                  f'(outputs, levels, messages) as documented ({exc})') from None
         return out, level.astype(np.int8), messages
 
+    def block(self, t_ns: np.ndarray, u: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, str]]]:
+        """Outputs, health levels and ``(tick, message)`` changes of consecutive ticks, by
+        :meth:`steps` or else :meth:`step` tick after tick. Called block after block over a
+        run it gives what one call over the whole run gives (the level carried across)."""
+        got = self.steps(t_ns, u)
+        if got is None:
+            got = _step_by_step(self, t_ns, u, self._last)
+        if len(got[1]):
+            self._last = int(got[1][-1])
+        return got
+
     def _bad_outputs(self, t: float, exc: Exception) -> AlgorithmError:
         alg = self.alg
         return AlgorithmError(f'algorithm {alg.title} at t = {t:.3f} s: step() must return '
@@ -277,13 +290,13 @@ _FLOAT = {float}
 _STR = {str}
 
 
-def _step_by_step(runner: AlgorithmRunner, t_ns: np.ndarray, table: np.ndarray):
-    """:meth:`AlgorithmRunner.step` tick after tick, as :meth:`Algorithm.steps` returns."""
+def _step_by_step(runner: AlgorithmRunner, t_ns: np.ndarray, table: np.ndarray, last: int):
+    """:meth:`AlgorithmRunner.step` tick after tick, as :meth:`Algorithm.steps` returns;
+    ``last``: the level before the first tick."""
     names = runner.alg.inputs
     out: list[list[float]] = []
     level = np.zeros(len(t_ns), dtype=np.int8)
     changes = []
-    last = OK
     for k, (t, row) in enumerate(zip(np.asarray(t_ns, dtype=np.int64).tolist(),
                                      table.tolist())):
         values, health = runner.step(t, dict(zip(names, row)))
@@ -344,10 +357,7 @@ def run_algorithm(alg: Algorithm, t_ns: np.ndarray, inputs: Mapping[str, np.ndar
     table = np.empty((len(t_ns), len(names)))
     for j, s in enumerate(names):
         table[:, j] = inputs[s]
-    block = runner.steps(t_ns, table)
-    if block is None:
-        block = _step_by_step(runner, t_ns, table)
-    out, level, changes = block
+    out, level, changes = runner.block(t_ns, table)
     outputs = {name: out[:, j].copy() for j, name in enumerate(alg.outputs)}
     messages = [m for _, m in changes]
     return AlgorithmRun(alg.title, np.asarray(t_ns) * 1e-9, outputs, level, messages)
