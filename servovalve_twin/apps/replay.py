@@ -14,64 +14,82 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..bag.anybag import AnyBag, open_any_bag
+from ..bag.reader import iter_float64_blocks
+from ..config import default_bag_dir
 from ..errors import BagError, TwinError
 from ..physics.params import EhaParams
 from ..physics.scenario import Scenario, scenario_from_dict
-from ..bag.reader import BagRun, read_bag
-from ..config import default_bag_dir
 
 
-def scenario_from_bag(run: BagRun) -> Scenario:
+#: the inputs a replay drives the twin with
+INPUTS = ('com', 'fr', 'psr')
+
+
+def scenario_from_bag(bag: AnyBag) -> Scenario:
     """The recorded Com, FR, PSR as a step scenario (breakpoints where a value changes), with
-    the recorded run's scheduled faults."""
-    raw: dict[str, Any] = {}
-    duration_ns = None
-    for sig in ('com', 'fr', 'psr'):
-        if f'/{sig}' not in run.series:
-            raise BagError(f'bag {str(run.path)!r} has no /{sig} topic to replay')
-        t, v = run.series[f'/{sig}']
-        if t.size == 0 or t[0] != 0:
-            raise BagError(f'bag {str(run.path)!r}: /{sig} does not start at t = 0')
-        keep = np.concatenate([[True], v[1:] != v[:-1]])
-        raw[sig] = [[float(ti) * 1e-9, float(vi)] for ti, vi in zip(t[keep], v[keep])]
-        duration_ns = int(t[-1]) if duration_ns is None else min(duration_ns, int(t[-1]))
-    raw['duration'] = duration_ns * 1e-9
-    raw['name'] = f'replay of {run.path.name}'
-    recorded = run.scenario() or {}
+    the recorded run's scheduled faults; read block by block (memory that grows with the
+    number of changes, not with the bag)."""
+    topics = {sig: bag.provenance.topic(sig) for sig in INPUTS}
+    for sig, topic in topics.items():
+        if topic not in bag.topics:
+            raise BagError(f'bag {str(bag.path)!r} has no /{sig} topic to replay')
+    raw: dict[str, Any] = {sig: [] for sig in INPUTS}
+    last: dict[str, float] = {}
+    end: dict[str, int] = {}
+    for series in iter_float64_blocks(bag, list(topics.values())):
+        for sig, topic in topics.items():
+            t, v = series.get(topic, ((), ()))
+            if not len(t):
+                continue
+            if sig not in end and t[0] != 0:
+                raise BagError(f'bag {str(bag.path)!r}: /{sig} does not start at t = 0')
+            # a breakpoint where the value changes (the first value, and NaN, always)
+            keep = np.concatenate([[sig not in last or not v[0] == last[sig]],
+                                   v[1:] != v[:-1]])
+            raw[sig] += [[float(ti) * 1e-9, float(vi)] for ti, vi in zip(t[keep], v[keep])]
+            last[sig], end[sig] = float(v[-1]), int(t[-1])
+    for sig in INPUTS:
+        if sig not in end:
+            raise BagError(f'bag {str(bag.path)!r}: /{sig} does not start at t = 0')
+    raw['duration'] = min(end.values()) * 1e-9
+    raw['name'] = f'replay of {bag.path.name}'
+    recorded = bag.provenance.scenario or {}
     if recorded.get('faults'):
         # the recorded run's injected faults are part of what it was: replay them too
         raw['faults'] = [f for f in recorded['faults'] if float(f['at']) <= raw['duration']]
-    for sig in ('com', 'fr', 'psr'):
+    for sig in INPUTS:
         raw[sig] = [p for p in raw[sig] if p[0] <= raw['duration']]
     return scenario_from_dict(raw)
 
 
-def bag_params(run: BagRun) -> EhaParams:
-    """The parameters the bag was recorded with (defaults for a bag without provenance)."""
+def bag_params(run) -> EhaParams:
+    """The parameters the bag (an :class:`AnyBag` or a :class:`BagRun`) was recorded with
+    (defaults for a bag without provenance)."""
     return run.provenance.eha_params(run.path)
 
 
 def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path | None = None,
            overrides: Mapping[str, Any] | None = None, overwrite: bool = False,
-           **twin_kwargs) -> tuple[BagRun, Any, dict]:
-    """Replay ``bag``; returns (the original, the new :class:`~..twin.TwinResult`, metrics of
-    the new run against the original)."""
+           **twin_kwargs) -> tuple[AnyBag, Any, dict]:
+    """Replay ``bag``; returns (the original, opened; the new :class:`~..twin.TwinResult`;
+    metrics of the new run against the original). Both bags are read block by block."""
     from ..twin import run_twin
-    from .compare import error_metrics
-    original = read_bag(bag)
+    from .compare import compare_bags
+    original = open_any_bag(bag, require_metadata=True)
     scenario = scenario_from_bag(original)
-    model = valve_model or original.valve_model or 'C2'
-    period = original.control_period or 1e-3
+    prov = original.provenance
+    model = valve_model or prov.valve_model or 'C2'
+    period = prov.control_period or 1e-3
     src = Path(bag)
     out = Path(out) if out is not None else default_bag_dir(f'{src.name}_replay', model)
+    # keep_values off: the comparison reads the new bag (the run's table would grow with it)
+    twin_kwargs.setdefault('keep_values', False)
     result = run_twin(model, scenario, overrides, control_period=period, bag=out,
                       base_params=bag_params(original), overwrite=overwrite, **twin_kwargs)
-    new = read_bag(out)
-    windows = {}
-    sc = original.scenario()
-    if sc and sc.get('windows'):
-        windows = {k: tuple(v) for k, v in sc['windows'].items()}
-    metrics = error_metrics(original.signals, new.signals, windows)
+    # the recorded scenario's named windows, as a run of it reports them
+    named = (prov.scenario or {}).get('windows') or {}
+    metrics = compare_bags(bag, out, {k: tuple(v) for k, v in named.items()})
     return original, result, metrics
 
 

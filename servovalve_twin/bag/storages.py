@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import io
 import sqlite3
 import struct
 import zlib
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, NamedTuple
 
 import yaml
 
@@ -179,50 +180,95 @@ def _topic_info(channel, schema) -> TopicInfo:
                      serialization_format=channel.message_encoding)
 
 
-def _lean_summary(fh):
-    """An MCAP file's summary section read record by record into the mcap library's
-    ``Summary`` -- statistics, schemas, channels, metadata indexes -- without its chunk
-    indexes, which the library keeps as one object per chunk (a 4 GB bag of 16 kB chunks:
-    ~300 MB); :func:`_chunk_indexes` streams them instead. None without a summary; its
-    ``start`` is the summary section's offset."""
-    from mcap.records import Channel, Footer, MetadataIndex, Schema, Statistics
+#: summary-section record opcodes (MCAP spec)
+_OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_CHUNK_INDEX = 0x02, 0x03, 0x04, 0x08
+_OP_STATISTICS, _OP_METADATA_INDEX = 0x0B, 0x0D
+#: a chunk index's fixed head: message start and end time, chunk start offset and length,
+#: the byte length of its (channel id uint16, offset uint64) map
+_CHUNK_INDEX_HEAD = struct.Struct('<QQQQI')
+
+
+class _ChunkAt(NamedTuple):
+    """What the reader uses of a chunk index (the library's ``ChunkIndex`` costs ~20 x more
+    to parse: a read call per field)."""
+
+    message_start_time: int
+    message_end_time: int
+    chunk_start_offset: int
+    channel_ids: frozenset
+
+
+def _summary_records(fh, start: int, wanted):
+    """``(opcode, body)`` of the summary section's records whose opcode is in ``wanted``, the
+    others skipped by their length unparsed (a 4 GB bag has ~250 k chunk indexes)."""
+    fh.seek(start)
+    while True:
+        head = fh.read(9)
+        if len(head) < 9:
+            raise EOFError('the summary section ends without a footer')
+        op, length = _RECORD_HEAD.unpack(head)
+        if op == _OP_FOOTER:
+            return
+        if op in wanted:
+            body = fh.read(length)
+            if len(body) < length:
+                raise EOFError('a summary record runs past the end of the file')
+            yield op, body
+        else:
+            fh.seek(length, 1)
+
+
+def _footer_summary_start(fh) -> int:
+    from mcap.records import Footer
     from mcap.stream_reader import MAGIC_SIZE, StreamReader
-    from mcap.summary import Summary
     fh.seek(0, 2)
     fh.seek(fh.tell() - MAGIC_SIZE - 29)            # the footer: opcode, length, 20 bytes
     footer = next(StreamReader(fh, skip_magic=True).records)
     if not isinstance(footer, Footer):
         raise ValueError('no footer at the end of the file')
-    if footer.summary_start == 0:
+    return footer.summary_start
+
+
+def _lean_summary(fh):
+    """An MCAP file's summary section read record by record into the mcap library's
+    ``Summary`` -- statistics, schemas, channels, metadata indexes -- without its chunk
+    indexes, which the library keeps as one object per chunk (a 4 GB bag of 16 kB chunks:
+    ~300 MB) and which are skipped here unread; :func:`_chunk_indexes` streams them. None
+    without a summary; its ``start`` is the summary section's offset."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, MetadataIndex, Schema, Statistics
+    from mcap.summary import Summary
+    start = _footer_summary_start(fh)
+    if start == 0:
         return None
-    fh.seek(footer.summary_start)
     out = Summary()
-    out.start = footer.summary_start
-    for rec in StreamReader(fh, skip_magic=True).records:
-        if isinstance(rec, Statistics):
+    out.start = start
+    kinds = {_OP_STATISTICS: Statistics, _OP_SCHEMA: Schema, _OP_CHANNEL: Channel,
+             _OP_METADATA_INDEX: MetadataIndex}
+    for op, body in _summary_records(fh, start, kinds):
+        rec = kinds[op].read(ReadDataStream(io.BytesIO(body)))
+        if op == _OP_STATISTICS:
             out.statistics = rec
-        elif isinstance(rec, Schema):
+        elif op == _OP_SCHEMA:
             out.schemas[rec.id] = rec
-        elif isinstance(rec, Channel):
+        elif op == _OP_CHANNEL:
             out.channels[rec.id] = rec
-        elif isinstance(rec, MetadataIndex):
+        else:
             out.metadata_indexes.append(rec)
-        elif isinstance(rec, Footer):
-            break
     return out
 
 
 def _chunk_indexes(f: Path, start: int):
-    """The summary section's chunk indexes one at a time, from their own handle on ``f``."""
-    from mcap.records import ChunkIndex, Footer
-    from mcap.stream_reader import StreamReader
-    with open(f, 'rb') as fh:
-        fh.seek(start)
-        for rec in StreamReader(fh, skip_magic=True).records:
-            if isinstance(rec, ChunkIndex):
-                yield rec
-            elif isinstance(rec, Footer):
-                return
+    """The summary section's chunk indexes one at a time (as :class:`_ChunkAt`), from their
+    own handle on ``f``."""
+    with open(f, 'rb', buffering=1 << 20) as fh:
+        for _, body in _summary_records(fh, start, (_OP_CHUNK_INDEX,)):
+            t0, t1, offset, _, n = _CHUNK_INDEX_HEAD.unpack_from(body)
+            if _CHUNK_INDEX_HEAD.size + n > len(body) or n % 10:
+                raise ValueError('a chunk index whose channel map runs past its end')
+            ids = frozenset(struct.unpack_from('<H', body, _CHUNK_INDEX_HEAD.size + k)[0]
+                            for k in range(0, n, 10))
+            yield _ChunkAt(t0, t1, offset, ids)
 
 
 def _chunks_in_time_order(chunk_indexes) -> bool:
@@ -262,7 +308,7 @@ def _in_chunk_order(fh, summary, chunk_indexes, keep, start_ns, end_ns, topics_o
             continue
         if end_ns is not None and ci.message_start_time > end_ns:
             continue
-        if ci.message_index_offsets and not wanted.intersection(ci.message_index_offsets):
+        if ci.channel_ids and not wanted.intersection(ci.channel_ids):
             continue
         fh.seek(ci.chunk_start_offset + 1 + 8)
         stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(fh)), validate_crc=True)

@@ -72,6 +72,8 @@ from .config import (TwinResult, check_clock_options, ros_param, ros_param_value
 #: how often (simulated time) the executor gets a turn: node clocks and parameter requests
 #: follow at this pace, external subscribers are noticed at it
 GRAPH_PERIOD_NS = 100_000_000
+#: ticks of the input schedule evaluated at a time (the lists cost ~100 bytes a tick)
+SCHEDULE_TICKS = 1 << 14
 
 
 
@@ -277,9 +279,6 @@ class Twin:
     def run(self, on_tick: Callable[[int, 'Twin'], None] | None = None) -> TwinResult:
         """Run the scenario; ``on_tick(k, twin)`` is called after each tick (faults, tests)."""
         n_ticks = self.scenario.duration_ns // self.period_ns
-        # the whole schedule, evaluated once: the same values simulate() samples
-        com, fr, psr = (a.tolist() for a in self.scenario.inputs(
-            np.arange(n_ticks + 1, dtype=np.int64) * self.period_ns))
         faults = self._fault_ticks()
         self.sim.wait_for_followers()
         wall = time.perf_counter()
@@ -300,12 +299,18 @@ class Twin:
                 self.sim.publish(t_ns, msg, t_ns % self.graph_period_ns == 0)
             if k in faults:
                 self._inject(faults[k], t_ns)
+            if k % SCHEDULE_TICKS == 0:
+                # the schedule, evaluated a stretch of ticks at a time: the values simulate()
+                # samples, in memory that does not grow with the run
+                at = np.arange(k, min(k + SCHEDULE_TICKS, n_ticks + 1), dtype=np.int64)
+                com, fr, psr = (a.tolist() for a in self.scenario.inputs(at * self.period_ns))
+            j = k % SCHEDULE_TICKS
             n_sub = self.n_sub if k < n_ticks else 0      # the end instant: evaluate only
             for node in self.observers:
                 node.begin_tick(t_ns, n_sub)
             self.plant.begin_tick(t_ns, n_sub)
-            self.command_generator.publish_values({'com': com[k]})
-            self.load_supply.publish_values({'fr': fr[k], 'psr': psr[k]})
+            self.command_generator.publish_values({'com': com[j]})
+            self.load_supply.publish_values({'fr': fr[j], 'psr': psr[j]})
             self.bus.drain()
             late = [n.get_name() for n in [self.plant] + self.observers if n.done < k]
             if late:

@@ -106,6 +106,17 @@ def test_twin_equals_simulate_with_the_same_sampled_ecu(ros_context):
         assert all(v == 0.0 for v in worst.values())      # one code path: bit-identical
 
 
+def test_the_schedule_evaluated_in_stretches_is_the_same_run(ros_context, monkeypatch):
+    """The inputs are evaluated a stretch of ticks at a time: stretches of 7 ticks (the
+    paper's steps fall inside and at the seams) give simulate()'s run bit for bit."""
+    from servovalve_twin.twin import lockstep
+    monkeypatch.setattr(lockstep, 'SCHEDULE_TICKS', 7)
+    result = run_twin('C2', 'paper', context=ros_context, handle_signals=False)
+    ref = simulate('C2', 'paper', ecu_period=1e-3)
+    for c in ref.columns:
+        np.testing.assert_array_equal(result.signals[c], ref[c], err_msg=c)
+
+
 #: sensors on every sensed signal, P12 and P1 sampled slower than the control period
 SENSORS = {'seed': 5, 'xs': {'noise': 1.0e-7}, 'xj': {'noise': 2.0e-5, 'quantisation': 1.0e-6},
            'dxj': {'bias': 1.0e-3, 'drift': 2.0e-2}, 'p12': {'noise': 1.0e5, 'period': 0.003},
