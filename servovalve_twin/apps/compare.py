@@ -141,22 +141,55 @@ def _aligned(ref_blocks, run_blocks):
                 {c: v[ib] for c, v in parts[1].items()}
 
 
-def compare_bags(ref: str | Path, run: str | Path, windows: Mapping[str, tuple[float, float]],
-                 signals: Iterable[str] = COMPARED) -> dict[str, dict[str, dict[str, float]]]:
-    """:func:`check_same_inputs` and :func:`error_metrics` of two bags, read block by block
-    (:func:`~..bag.reader.iter_signal_blocks`): memory that does not grow with the bags. The
-    sums run block by block, so an RMS may differ from the whole-array one in its last
-    bits."""
+def run_blocks(path: str | Path):
+    """A run's 1 ms rows as ``(source, rows)`` blocks: a bag's read block by block
+    (:func:`~..bag.reader.iter_signal_blocks`), a ``simulate`` table's whole (a file of the
+    user's own, held as it is)."""
+    if is_table(path):
+        from ..runs import read_table
+        return iter([(None, read_table(Path(path), require=('t', 'xj')))])
     from ..bag.reader import iter_signal_blocks
+    return iter_signal_blocks(path)
+
+
+def run_windows(path: str | Path) -> dict[str, tuple[float, float]]:
+    """:func:`load_run`'s windows of a bag (:func:`bag_windows`, its signals not held) or a
+    table."""
+    if is_table(path):
+        from ..runs import read_table
+        return _phases_from_inputs(read_table(Path(path), require=('t', 'xj')))
+    return bag_windows(path)
+
+
+def run_span_ms(path: str | Path) -> int:
+    """The span of a run's rows [ms]: a bag's from its summary (its messages unread)."""
+    if is_table(path):
+        from ..runs import read_table
+        t = read_table(Path(path), require=('t', 'xj'))['t']
+        return int(round((t[-1] - t[0]) * 1000)) if t.size else 0
+    from ..bag.anybag import open_any_bag
+    bag = open_any_bag(path, require_metadata=True)
+    return bag.duration_ns // 1_000_000
+
+
+def compare_bags(ref: str | Path, run: str | Path, windows: Mapping[str, tuple[float, float]],
+                 signals: Iterable[str] = COMPARED, plot: 'PlotRows | None' = None
+                 ) -> dict[str, dict[str, dict[str, float]]]:
+    """:func:`error_metrics` of two runs (bags or tables) driven by the same Com, FR and PSR
+    (else refused), read block by block: memory that does not grow with the bags. The sums run block by block, so
+    an RMS may differ from the whole-array one in its last bits. ``plot``: also gather the
+    rows a figure of the two needs."""
     wins = {name: _Window(int(round(t0 * 1000)), int(round(t1 * 1000)))
             for name, (t0, t1) in windows.items()}
     whole = _Window(0, None)
     last = None
     n = 0
-    for ms, a, b in _aligned(iter_signal_blocks(ref), iter_signal_blocks(run)):
+    for ms, a, b in _aligned(run_blocks(ref), run_blocks(run)):
         _same_inputs(a, b, ms * 1e-3)
         last = int(ms[-1])
         n += ms.size
+        if plot is not None:
+            plot.add(ms, a, b)
         for sig in signals:
             if sig in a and sig in b:
                 err = b[sig] - a[sig]
@@ -169,6 +202,64 @@ def compare_bags(ref: str | Path, run: str | Path, windows: Mapping[str, tuple[f
     for name, w in wins.items():
         out[name] = w.result(last)
     return out
+
+
+#: rows a comparison's figure holds at most per run (an 8-inch figure has ~800 pixel columns)
+PLOT_ROWS = 20_000
+
+
+class PlotRows:
+    """The rows of two aligned runs a figure needs, in memory bounded by :data:`PLOT_ROWS`:
+    every row of a run of at most that many ms; of a longer one, per bin of ``bin_ms`` ms
+    each column's minimum and maximum, drawn at the bin's first and last row (a line through
+    them covers what the bin's rows cover: peaks stay visible)."""
+
+    def __init__(self, span_ms: int, max_rows: int = PLOT_ROWS):
+        self.bin_ms = 1 if span_ms + 1 <= max_rows else -(-(span_ms + 1) // (max_rows // 2))
+        self.parts: list[tuple[dict, dict]] = []
+        self.tail: tuple | None = None                # the last bin, still open
+
+    def add(self, ms: np.ndarray, a: Mapping[str, np.ndarray], b: Mapping[str, np.ndarray]
+            ) -> None:
+        cols = [c for c in a if c not in ('t', 'ms') and c in b]
+        if self.bin_ms == 1:
+            self.parts.append(({c: a[c] for c in ['t'] + cols},
+                               {c: b[c] for c in ['t'] + cols}))
+            return
+        rows = {'ms': ms, **{f'a.{c}': a[c] for c in cols}, **{f'b.{c}': b[c] for c in cols}}
+        if self.tail is not None:                     # the open bin continues here?
+            rows = {k: np.concatenate([self.tail[k], v]) for k, v in rows.items()
+                    if k in self.tail}
+        bins = rows['ms'] // self.bin_ms
+        cut = int(np.searchsorted(bins, bins[-1]))    # the last bin may go on in the next block
+        self.tail = {k: v[cut:] for k, v in rows.items()}
+        self._bin({k: v[:cut] for k, v in rows.items()}, bins[:cut], cols)
+
+    def _bin(self, rows, bins, cols) -> None:
+        if not bins.size:
+            return
+        starts = np.flatnonzero(np.concatenate([[True], bins[1:] != bins[:-1]]))
+        ends = np.concatenate([starts[1:], [bins.size]]) - 1
+        t = np.empty(2 * starts.size)
+        t[0::2], t[1::2] = rows['ms'][starts] * 1e-3, rows['ms'][ends] * 1e-3
+        out = ({'t': t}, {'t': t})
+        for side, key in ((0, 'a'), (1, 'b')):
+            for c in cols:
+                v = rows[f'{key}.{c}']
+                col = np.empty(2 * starts.size)
+                col[0::2] = np.fmin.reduceat(v, starts)
+                col[1::2] = np.fmax.reduceat(v, starts)
+                out[side][c] = col
+        self.parts.append(out)
+
+    def runs(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """The two runs' rows to draw."""
+        if self.tail is not None and self.tail['ms'].size:
+            cols = sorted({k[2:] for k in self.tail if k != 'ms'})
+            self._bin(self.tail, self.tail['ms'] // self.bin_ms, cols)
+            self.tail = None
+        return tuple({c: np.concatenate([p[side][c] for p in self.parts])
+                      for c in self.parts[0][side]} for side in (0, 1))
 
 
 def exceeded(metrics: Mapping[str, Any], tolerances: Mapping[str, float]) -> list[str]:
@@ -324,13 +415,6 @@ def _phases_from_inputs(signals: Mapping[str, np.ndarray], max_phases: int = MAX
     cuts = {float(t[0]), float(t[-1])}
     _input_steps(signals, {}, cuts)
     return _phases(cuts, max_phases)
-
-
-def check_same_inputs(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray]) -> None:
-    """Two runs are comparable only if they were driven by the same Com, FR and PSR."""
-    i_ref, i_run, t = align(ref, run)
-    _same_inputs({s: np.asarray(v)[i_ref] for s, v in ref.items() if s in INPUTS},
-                 {s: np.asarray(v)[i_run] for s, v in run.items() if s in INPUTS}, t)
 
 
 INPUTS = ('com', 'fr', 'psr')

@@ -8,6 +8,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..bag.anybag import open_any_bag
 from ..bag.reader import read_bag_until
 from ..errors import TwinError
 from ..outputs import output_path
@@ -53,6 +54,12 @@ def calibration_scenario(provenance) -> str | None:
     return None
 
 
+#: the latest window end diagnose fits [s]: the model is integrated from t = 0 (its state is
+#: not measured), so a fit's time (~2.5 s CPU per second) and memory grow with that end,
+#: not with the window -- a late window of a long flight would take hours
+MAX_FIT_END_S = 120.0
+
+
 def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = DIAGNOSABLE,
                  window: tuple[float, float] | None = None, free: Sequence[str] = (),
                  bootstrap: int = 0, pairs: bool = False,
@@ -63,6 +70,11 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     applies unless the bag says it was recorded with the fitted model itself (then exact). A
     bag without provenance, diagnosed without stated ``nominal`` parameters, is
     ``unexplained``: its design is not known, so no fault can be measured against it."""
+    end = window[1] if window is not None else open_any_bag(bag).end_ns * 1e-9
+    if end > MAX_FIT_END_S:
+        raise TwinError(f'{bag}: diagnose integrates the model from t = 0 to the end of the '
+                        f'window, here {end:.6g} s; allowed at most {MAX_FIT_END_S:g} s (give '
+                        f'--window T0:T1 with T1 <= {MAX_FIT_END_S:g})')
     # only the rows up to the window's end are held (the rest is read and checked as it
     # passes): a window of a long flight costs its own memory, not the flight's
     run = read_bag_until(bag, None if window is None else window[1])

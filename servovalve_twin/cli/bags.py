@@ -24,26 +24,18 @@ class Compare(Command):
                             'cor; SI units) exceeds MAX (repeatable)')
 
     def main(self, args):
-        from ..apps.compare import (bag_windows, check_same_inputs, compare_bags,
-                                    error_metrics, exceeded, format_table, is_table, load_run,
-                                    parse_tolerances, provenance_differences, write_json)
+        from ..apps.compare import (PlotRows, compare_bags, exceeded, format_table,
+                                    parse_tolerances, provenance_differences, run_span_ms,
+                                    run_windows, write_json)
         from ..apps.plots import plot_overlay
         tolerances = parse_tolerances(args.tolerance)
-        # two bags are compared block by block, in memory that does not grow with them; a
-        # table, or a plot (which needs every row), reads the runs whole
-        streamed = not (args.plot or is_table(args.ref) or is_table(args.run))
-        if streamed:
-            windows = bag_windows(args.ref)
-        else:
-            ref, windows = load_run(args.ref)
-            run, _ = load_run(args.run)
+        # block by block, in memory that does not grow with the bags (a table is held whole);
+        # a plot keeps at most PLOT_ROWS rows a run
+        windows = run_windows(args.ref)
         for line in provenance_differences(args.ref, args.run):
             print(f'servovalve-twin compare: warning: {line}', file=sys.stderr)
-        if streamed:
-            metrics = compare_bags(args.ref, args.run, windows)
-        else:
-            check_same_inputs(ref, run)
-            metrics = error_metrics(ref, run, windows)
+        rows = PlotRows(run_span_ms(args.ref)) if args.plot else None
+        metrics = compare_bags(args.ref, args.run, windows, plot=rows)
         print(f'{args.run} against {args.ref} (errors run - ref, RMS / max):')
         print(format_table(metrics))
         if args.json:
@@ -51,6 +43,7 @@ class Compare(Command):
                                        metrics=metrics, tolerances=tolerances))
         if args.plot:
             named = {k: v for k, v in windows.items() if not k.startswith('phase')}
+            ref, run = rows.runs()
             plot_overlay({Path(args.ref).stem: ref, Path(args.run).stem: run}, args.plot,
                          reference=Path(args.ref).stem, title=f'{Path(args.run).stem} against '
                          f'{Path(args.ref).stem}', windows=named, inputs=True)

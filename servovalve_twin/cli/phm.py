@@ -60,7 +60,7 @@ class Diagnose(Command):
         p.add_argument('--faults', metavar='NAMES|all', help='comma-separated hypotheses '
                        '(default all the catalog faults a simplified model can see)')
         p.add_argument('--window', metavar='T0:T1', help='fit the rows in [T0, T1] s (default '
-                       'the whole bag)')
+                       'the whole bag); T1 at most 120 s: the model runs from t = 0')
         p.add_argument('--free', metavar='M,CJ,...', help='nuisance parameters estimated '
                        'alongside (factors on the recorded values, in [0.5, 2])')
         p.add_argument('--bootstrap', type=int, default=0, metavar='N',

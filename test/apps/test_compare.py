@@ -100,3 +100,43 @@ def test_memory_does_not_grow_with_the_bags(tmp_path, monkeypatch):
         tracemalloc.stop()
         assert got['all']['xj']['n'] == 1001 * s and got['all']['xj']['max'] == 0.0
     assert peaks[1] - peaks[0] < 1.5 * (1 << 20), peaks
+
+
+def test_the_figure_of_a_short_run_has_every_row(tmp_path, monkeypatch):
+    from servovalve_twin.apps.compare import PlotRows
+    monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 500)
+    ref, run = _bags(tmp_path)
+    rows = PlotRows(400)
+    compare_bags(ref, run, {}, plot=rows)
+    a, b = rows.runs()
+    whole_a, whole_b = reader.read_bag(ref).signals, reader.read_bag(run).signals
+    for got, want in ((a, whole_a), (b, whole_b)):
+        assert set(got) == set(want)
+        for c, v in want.items():
+            assert got[c].tolist() == v.tolist(), c
+
+
+def test_the_figure_of_a_long_run_keeps_each_bins_extremes(tmp_path, monkeypatch):
+    """Rows beyond the figure's budget: per bin of ms, each column's minimum at the bin's first
+    row and maximum at its last, as a hand computation over the whole table gives -- with
+    block seams (every 700 messages) inside bins."""
+    import numpy as np
+    from servovalve_twin.apps.compare import PlotRows
+    monkeypatch.setattr(reader, 'BLOCK_MESSAGES', 700)
+    bag = write_long_bag(tmp_path / 'b', 2)                 # ticks 0..2001 ms, a seam at 1 s
+    rows = PlotRows(2001, max_rows=100)                     # 49 bins of 41 ms
+    assert rows.bin_ms == 41
+    compare_bags(bag, bag, {}, plot=rows)
+    a, b = rows.runs()
+    whole = reader.read_bag(bag).signals
+    ms = np.rint(whole['t'] * 1000).astype(np.int64)
+    bins = ms // 41
+    want_t, want = [], {c: [] for c in whole if c != 't'}
+    for k in np.unique(bins):
+        sel = bins == k
+        want_t += [ms[sel][0] * 1e-3, ms[sel][-1] * 1e-3]
+        for c in want:
+            want[c] += [np.nanmin(whole[c][sel]), np.nanmax(whole[c][sel])]
+    assert a['t'].tolist() == want_t and len(want_t) == 2 * 49
+    for c, v in want.items():
+        assert a[c].tolist() == v and b[c].tolist() == v, c

@@ -51,3 +51,26 @@ def test_the_memory_of_a_windowed_read_does_not_grow_with_the_bag(tmp_path, monk
         tracemalloc.stop()
         assert len(got.signals['t']) == 1001
     assert peaks[1] - peaks[0] < 1.5 * (1 << 20), peaks
+
+
+def test_a_fit_ending_past_the_limit_is_refused_before_anything_is_read(tmp_path, monkeypatch,
+                                                                         capsys):
+    """The model runs from t = 0 to the window's end: a bag (or a window) ending later than
+    MAX_FIT_END_S is one line and exit 2 -- without reading the messages (a 4 GB bag must not
+    be read for minutes to be refused) -- and a window ending within it still diagnoses."""
+    from servovalve_twin.apps import diagnose as module
+    from servovalve_twin.cli import main
+    bag = write_long_bag(tmp_path / 'b', 4)                  # rows up to 4.003 s
+    monkeypatch.setattr(module, 'MAX_FIT_END_S', 3.0)
+    monkeypatch.setattr(reader, 'iter_float64_blocks', None)   # any read of messages fails
+    out = tmp_path / 'd.json'
+    for extra in ([], ['--window', '2.5:3.5']):
+        assert main(['diagnose', str(bag), '--json', str(out), *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and 'at most 3 s' in err[0] and '--window T0:T1' in err[0], err
+        assert not out.exists()
+    monkeypatch.undo()
+    monkeypatch.setattr(module, 'MAX_FIT_END_S', 3.0)
+    assert main(['diagnose', str(bag), '--json', str(out), '--window', '0.2:0.8',
+                 '--faults', 'leakage_growth']) == 0
+    assert json.loads(out.read_text())['window'] == [0.2, 0.8]

@@ -184,7 +184,7 @@ def test_the_monitor_in_one_call_equals_the_monitor_tick_by_tick():
     t_ns = np.arange(len(table), dtype=np.int64) * 1_000_000
     one = AlgorithmRunner(MonitorAlgorithm(), 1e-3, DEFAULTS)
     many = AlgorithmRunner(MonitorAlgorithm(), 1e-3, DEFAULTS)
-    out_1, level_1, msg_1 = _step_by_step(one, t_ns, table)
+    out_1, level_1, msg_1 = _step_by_step(one, t_ns, table, 0)       # from level OK
     out_n, level_n, msg_n = many.steps(t_ns, table)
     np.testing.assert_array_equal(out_n, out_1)
     np.testing.assert_array_equal(level_n, level_1)
