@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import struct
+import tempfile
 import zlib
 from typing import BinaryIO, Dict, List
 
@@ -29,6 +30,8 @@ from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Header, Metadata,
                           MetadataIndex, Schema, Statistics, SummaryOffset)
 
 MAGIC = struct.pack('<8B', 137, 77, 67, 65, 80, 48, 13, 10)
+#: chunk-index records held in memory before they go to a temporary file
+SPOOL_BYTES = 1 << 20
 # opcode, record length, channel id, sequence, log time, publish time
 _MESSAGE = struct.Struct('<BQHIQQ')
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
@@ -70,7 +73,11 @@ class McapFileWriter:
         self._chunk_index: Dict[int, list] = {}   # (log time, offset): arrays, tuples
         self._chunk_start = 0
         self._chunk_end = 0
-        self._chunk_indexes: List[ChunkIndex] = []
+        # the summary's chunk indexes, written as records as each chunk closes, into a file
+        # that stays in memory up to 1 MB (an hour's run closes ~72 000 chunks: as objects,
+        # ~100 MB held until the end)
+        self._chunk_index_records = tempfile.SpooledTemporaryFile(max_size=SPOOL_BYTES)
+        self._chunk_count = 0
         self._metadata_indexes: List[MetadataIndex] = []
         self._counts: Dict[int, int] = {}
         self.message_count = 0
@@ -204,12 +211,15 @@ class McapFileWriter:
                                    len(body)) + body)
             pos += len(out[-1])
         self._write(b''.join(out))
-        self._chunk_indexes.append(ChunkIndex(
+        builder = RecordBuilder()
+        ChunkIndex(
             message_start_time=self._chunk_start, message_end_time=self._chunk_end,
             chunk_start_offset=offset, chunk_length=chunk_length,
             message_index_offsets=index_offsets,
             message_index_length=self._out.tell() - index_start, compression='',
-            compressed_size=len(data), uncompressed_size=len(data)))
+            compressed_size=len(data), uncompressed_size=len(data)).write(builder)
+        self._chunk_index_records.write(builder.end())
+        self._chunk_count += 1
         self._chunk = bytearray()
         self._chunk_index = {}
 
@@ -231,33 +241,46 @@ class McapFileWriter:
         DataEnd(data_section_crc=self._crc).write(builder)
         self._out.write(builder.end())
         summary_start = self._out.tell()
-        builder = RecordBuilder()
         offsets = []
+        crc = 0                             # the summary's, written piece by piece
 
-        def group(opcode, records) -> None:
-            start = builder.count
-            for r in records:
-                r.write(builder)
-            offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + start,
-                                         group_length=builder.count - start))
+        def put(data: bytes) -> None:
+            nonlocal crc
+            crc = zlib.crc32(data, crc)
+            self._out.write(data)
+
+        def group(opcode, records=None, raw=None) -> None:
+            start = self._out.tell()
+            if raw is None:
+                builder = RecordBuilder()
+                for r in records:
+                    r.write(builder)
+                put(builder.end())
+            else:                           # records already written: copied in 1 MB pieces
+                raw.seek(0)
+                for piece in iter(lambda: raw.read(1 << 20), b''):
+                    put(piece)
+            offsets.append(SummaryOffset(group_opcode=opcode, group_start=start,
+                                         group_length=self._out.tell() - start))
         group(Opcode.SCHEMA, self._schemas.values())
         group(Opcode.CHANNEL, self._channels.values())
         group(Opcode.STATISTICS, [Statistics(
             message_count=self.message_count, schema_count=len(self._schemas),
             channel_count=len(self._channels), attachment_count=0,
-            metadata_count=len(self._metadata_indexes), chunk_count=len(self._chunk_indexes),
+            metadata_count=len(self._metadata_indexes), chunk_count=self._chunk_count,
             message_start_time=self._start, message_end_time=self._end,
             channel_message_counts=dict(self._counts))])
-        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.CHUNK_INDEX, raw=self._chunk_index_records)
+        self._chunk_index_records.close()
         group(Opcode.METADATA_INDEX, self._metadata_indexes)
-        summary_offset_start = summary_start + builder.count
+        summary_offset_start = self._out.tell()
+        builder = RecordBuilder()
         for o in offsets:
             o.write(builder)
-        summary = builder.end()
+        put(builder.end())
         # the footer's CRC covers the summary and the footer up to its own field
         footer_head = struct.pack('<BQQQ', Opcode.FOOTER, 8 + 8 + 4, summary_start,
                                   summary_offset_start)
-        self._out.write(summary + footer_head
-                        + struct.pack('<I', zlib.crc32(footer_head, zlib.crc32(summary))))
+        self._out.write(footer_head + struct.pack('<I', zlib.crc32(footer_head, crc)))
         self._out.write(MAGIC)
         self._out.flush()
