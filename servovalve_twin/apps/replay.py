@@ -1,9 +1,13 @@
 """Replay: drive the ECU and plant with a bag's Com, FR and PSR on simulated time, record the
 new run and compare it with the bag.
 
-The recorded inputs become a step scenario with a breakpoint wherever a recorded value changes,
-so the schedule nodes publish exactly the recorded values at every tick. Parameters, control
-period and (unless overridden) the valve model come from the bag's provenance record.
+A bag the twin recorded carries the scenario it ran (its provenance record): when the recorded
+inputs are that scenario's values at every tick (checked block by block), the scenario is
+replayed as it is -- an hour of a sine command is a few numbers. Otherwise (another tool's
+bag, an input changed mid-run) the recorded inputs become a step scenario with a breakpoint
+wherever a recorded value changes, so the schedule nodes publish exactly the recorded values
+at every tick -- at most :data:`MAX_BREAKPOINTS` of them per input. Parameters, control period
+and (unless overridden) the valve model come from the bag's provenance record.
 """
 
 from __future__ import annotations
@@ -24,6 +28,55 @@ from ..physics.scenario import Scenario, scenario_from_dict
 
 #: the inputs a replay drives the twin with
 INPUTS = ('com', 'fr', 'psr')
+#: the most breakpoints a replayed input may have (~100 bytes each in the scenario, and the
+#: scenario is recorded in the new bag's provenance): a 1 kHz input that changes at every
+#: tick reaches it after 200 s
+MAX_BREAKPOINTS = 200_000
+
+
+def replay_scenario(bag: AnyBag) -> Scenario:
+    """What a replay of ``bag`` runs: the twin's recorded scenario when the recorded inputs
+    are its values at every tick (and they end together), else :func:`scenario_from_bag`."""
+    raw = bag.provenance.scenario
+    if raw is not None:
+        scn = bag.provenance.scenario_object(bag.path)
+        end = _recorded_end_if(bag, scn)
+        if end is not None:
+            duration = end * 1e-9
+            # a run stopped early: its breakpoints after the stop are not part of it
+            out = {k: [p for p in raw[k] if p[0] <= duration] if isinstance(raw[k], list)
+                   else raw[k] for k in INPUTS if k in raw}
+            out.update(name=f'replay of {bag.path.name}', duration=duration)
+            if raw.get('faults'):
+                out['faults'] = [f for f in raw['faults'] if float(f['at']) <= duration]
+            try:
+                return scenario_from_dict(out)
+            except TwinError:           # e.g. a ramp cut short by the stop: the values, then
+                pass
+    return scenario_from_bag(bag)
+
+
+def _recorded_end_if(bag: AnyBag, scn: Scenario) -> int | None:
+    """The last tick [ns] of the recorded inputs if every recorded value of Com, FR and PSR is
+    ``scn``'s at its time (from t = 0, all three to the same end); else None."""
+    topics = {sig: bag.provenance.topic(sig) for sig in INPUTS}
+    if any(t not in bag.topics for t in topics.values()):
+        return None
+    ends = {}
+    for series in iter_float64_blocks(bag, list(topics.values())):
+        for i, (sig, topic) in enumerate(topics.items()):
+            t, v = series.get(topic, ((), ()))
+            if not len(t):
+                continue
+            if sig not in ends and t[0] != 0:
+                return None
+            want = scn.inputs(np.asarray(t, dtype=np.int64))[i]
+            if not np.array_equal(v, want, equal_nan=True):
+                return None
+            ends[sig] = int(t[-1])
+    if len(ends) != len(INPUTS) or len(set(ends.values())) != 1:
+        return None
+    return next(iter(ends.values()))
 
 
 def scenario_from_bag(bag: AnyBag) -> Scenario:
@@ -48,6 +101,12 @@ def scenario_from_bag(bag: AnyBag) -> Scenario:
             keep = np.concatenate([[sig not in last or not v[0] == last[sig]],
                                    v[1:] != v[:-1]])
             raw[sig] += [[float(ti) * 1e-9, float(vi)] for ti, vi in zip(t[keep], v[keep])]
+            if len(raw[sig]) > MAX_BREAKPOINTS:
+                raise BagError(f'bag {str(bag.path)!r}: /{sig} changes at more than '
+                               f'{MAX_BREAKPOINTS} ticks; a replay drives the twin through a '
+                               'step scenario of its recorded values, allowed at most '
+                               f'{MAX_BREAKPOINTS} steps per input (a bag the twin recorded '
+                               'replays its scenario instead)')
             last[sig], end[sig] = float(v[-1]), int(t[-1])
     for sig in INPUTS:
         if sig not in end:
@@ -77,7 +136,7 @@ def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path |
     from ..twin import run_twin
     from .compare import compare_bags
     original = open_any_bag(bag, require_metadata=True)
-    scenario = scenario_from_bag(original)
+    scenario = replay_scenario(original)
     prov = original.provenance
     model = valve_model or prov.valve_model or 'C2'
     period = prov.control_period or 1e-3
