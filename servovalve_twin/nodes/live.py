@@ -18,7 +18,7 @@ Who may connect:
 - the ``Host`` header must name the loopback address the server listens on (``127.0.0.1``,
   ``localhost`` or ``[::1]`` with its port): a DNS-rebinding page has its own host name there;
 - an ``Origin`` header, which browsers send and other clients do not, must be one of
-  :data:`ORIGINS` (the Foxglove web app, the desktop app) or one the user adds
+  :data:`ORIGINS` (the Foxglove web app, ``file://``) or one the user adds
   (:data:`ORIGINS_ENV`);
 - with a token (``SERVOVALVE_TWIN_FOXGLOVE_TOKEN`` in the environment; not an option, as a
   command line is visible to every local user in ``ps``), the URL must carry it:
@@ -50,7 +50,10 @@ from ..errors import TwinError
 #: messages used here are the same in both)
 SUBPROTOCOLS = ('foxglove.sdk.v1', 'foxglove.websocket.v1')
 #: Origin values accepted besides none (a client that is not a browser sends none): the
-#: Foxglove web app and the desktop app (an Electron page loaded from file://)
+#: Foxglove web app, and ``file://``, which Electron pages loaded from disk send (a desktop
+#: app that sends something else -- newer Chromium sends ``null``, as does any local HTML
+#: file, so it is not accepted by default -- is named in the refusal: add it with
+#: :data:`ORIGINS_ENV`)
 ORIGINS = ('https://app.foxglove.dev', 'https://studio.foxglove.dev', 'file://')
 #: the environment variable holding a token the clients must present (unset: no token)
 TOKEN_ENV = 'SERVOVALVE_TWIN_FOXGLOVE_TOKEN'
