@@ -71,13 +71,6 @@ def input_blocks(bag: AnyBag, names, *, block_messages: int | None = None
     return blocks()
 
 
-def bag_inputs(bag: AnyBag, names) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """:func:`input_blocks` whole."""
-    parts = list(input_blocks(bag, names))
-    return (np.concatenate([t for t, _ in parts]),
-            {name: np.concatenate([v[name] for _, v in parts]) for name in names})
-
-
 def bag_nominal(bag: AnyBag) -> tuple[EhaParams, float]:
     """The nominal parameters and control period the bag was recorded with (the twin's
     provenance record), or the defaults and 1 ms for a bag without one."""
