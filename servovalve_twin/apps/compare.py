@@ -176,9 +176,9 @@ def compare_bags(ref: str | Path, run: str | Path, windows: Mapping[str, tuple[f
                  signals: Iterable[str] = COMPARED, plot: 'PlotRows | None' = None
                  ) -> dict[str, dict[str, dict[str, float]]]:
     """:func:`error_metrics` of two runs (bags or tables) driven by the same Com, FR and PSR
-    (else refused), read block by block: memory that does not grow with the bags. The sums run block by block, so
-    an RMS may differ from the whole-array one in its last bits. ``plot``: also gather the
-    rows a figure of the two needs."""
+    (else refused), read block by block: memory that does not grow with the bags. The sums
+    run block by block, so an RMS may differ from the whole-array one in its last bits.
+    ``plot``: also gather the rows a figure of the two needs."""
     wins = {name: _Window(int(round(t0 * 1000)), int(round(t1 * 1000)))
             for name, (t0, t1) in windows.items()}
     whole = _Window(0, None)
@@ -217,7 +217,7 @@ class PlotRows:
     def __init__(self, span_ms: int, max_rows: int = PLOT_ROWS):
         self.bin_ms = 1 if span_ms + 1 <= max_rows else -(-(span_ms + 1) // (max_rows // 2))
         self.parts: list[tuple[dict, dict]] = []
-        self.tail: tuple | None = None                # the last bin, still open
+        self.tail: dict | None = None                 # the last bin, still open
 
     def add(self, ms: np.ndarray, a: Mapping[str, np.ndarray], b: Mapping[str, np.ndarray]
             ) -> None:
