@@ -161,9 +161,10 @@ def iter_float64_blocks(bag: AnyBag, topics=None, *, counts: dict[str, int] | No
                         block_messages: int | None = None):
     """:func:`float64_series` in consecutive blocks, in memory that does not grow with the bag:
     yields ``{topic: (log times ns, values)}`` of every Float64 topic (or of ``topics`` among
-    them; arrays empty where a block has none) holding every message logged before the time of the one that filled the block --
-    all messages of one log time fall in one block (log-time order). The tick check runs
-    across blocks. ``counts``: read every topic and count each one's messages into it."""
+    them; arrays empty where a block has none) holding every message logged before the time
+    of the one that filled the block -- all messages of one log time fall in one block
+    (log-time order). The tick check runs across blocks. ``counts``: read every topic and
+    count each one's messages into it."""
     import bisect
     block_messages = block_messages or BLOCK_MESSAGES
     p = bag.path
