@@ -132,6 +132,7 @@ def test_a_run_without_ticks_or_outputs(bag, tmp_path, monkeypatch):
     assert (tmp_path / 'e.json').read_text() == json.dumps(head, indent=2) + '\n'
 
 
+@pytest.mark.slow
 def test_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):
     """``evaluate --json`` of bags of 4 and 16 s (4 004 and 16 016 ticks) with 32 outputs, read
     and written 1 000 values at a time: the peak of Python allocations the same within 0.5 MiB
