@@ -222,3 +222,15 @@ def test_a_taken_port_is_one_line():
             FoxgloveLive(TYPES, port=first.port)
     finally:
         first.close(drain_s=1)
+
+
+def test_the_address_is_printed(capfd, monkeypatch):
+    """With port 0 the system picks the port: the user learns it from stderr."""
+    monkeypatch.setenv(TOKEN_ENV, 'x')
+    live = FoxgloveLive(TYPES, port=0)
+    try:
+        err = capfd.readouterr().err
+        assert f'live view for Foxglove on ws://127.0.0.1:{live.port} (the URL needs ?token=)' \
+            in err
+    finally:
+        live.close(drain_s=1)

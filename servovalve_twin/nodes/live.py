@@ -181,6 +181,9 @@ class FoxgloveLive:
             self.loop.close()
             raise TwinError(f'cannot serve Foxglove on {host}:{port}: {started["error"]}')
         self.server = started['server']
+        # the address to open in Foxglove (with port 0 the system chose it)
+        print(f'live view for Foxglove on ws://{host}:{self.port}'
+              + (' (the URL needs ?token=)' if self.token else ''), file=sys.stderr, flush=True)
 
     # -- the loop's thread ---------------------------------------------------------------------
 
