@@ -12,13 +12,29 @@ must not replace an existing one (the FMU), ``write_new(path, text)`` for text t
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import secrets
 import shutil
-import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
 from .errors import TwinError
+
+
+def new_temporary(directory: Path, prefix: str, suffix: str) -> tuple[int, Path]:
+    """A new file in ``directory`` under a random name, opened for writing: ``(fd, path)``.
+    Created exclusively (never an existing file or a planted link), with the permissions a
+    new file gets from the user's umask (0644 with the usual 022) -- ``mkstemp``'s 0600 made
+    every output, once renamed into place, readable by its owner alone."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, 'O_NOFOLLOW', 0)
+    for _ in range(100):
+        tmp = directory / f'{prefix}{secrets.token_hex(6)}{suffix}'
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, 'no free temporary name', str(directory))
 
 
 def _temporary(path: Path) -> Path:
@@ -26,12 +42,11 @@ def _temporary(path: Path) -> Path:
         raise TwinError(f'{path} is a directory; give a file name')
     try:
         # the target's suffix kept last: a writer that infers the format from it (matplotlib)
-        fd, tmp = tempfile.mkstemp(prefix=f'.{path.stem}.', suffix=f'.part{path.suffix}',
-                                   dir=path.parent)
+        fd, tmp = new_temporary(path.parent, f'.{path.stem}.', f'.part{path.suffix}')
     except OSError as exc:                  # the error names the target, not our temporary
         raise OSError(exc.errno, exc.strerror, str(path)) from None
     os.close(fd)
-    return Path(tmp)
+    return tmp
 
 
 @contextlib.contextmanager

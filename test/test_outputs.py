@@ -63,3 +63,22 @@ def test_a_built_file_never_replaces_an_existing_one(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ['EHA.fmu', 'built.fmu']
     out.unlink()
     assert place_new(built, out).read_bytes() == b'new'
+
+
+def test_an_output_gets_the_umasks_permissions(tmp_path):
+    """A finished output has the mode a new file gets (0644 under umask 022), as a file the
+    user wrote would -- mkstemp's 0600 made every output its owner's alone; the bag's
+    metadata.yaml too."""
+    from servovalve_twin.bag.writer import write_metadata_yaml
+    old = os.umask(0o022)
+    try:
+        with output_file(tmp_path / 'a.json') as fh:
+            fh.write('{}\n')
+        write_metadata_yaml(tmp_path, {'version': 9})
+        os.umask(0o077)
+        with output_file(tmp_path / 'b.json') as fh:
+            fh.write('{}\n')
+    finally:
+        os.umask(old)
+    mode = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
+    assert mode == {'a.json': 0o644, 'metadata.yaml': 0o644, 'b.json': 0o600}

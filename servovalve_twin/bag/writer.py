@@ -18,7 +18,6 @@ import json
 import os
 import re
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -300,7 +299,8 @@ READ_ONLY_DIRS: list[Path] = [Path(__file__).resolve().parents[1] / 'data']
 def write_metadata_yaml(directory: Path, meta: Mapping[str, Any]) -> None:
     """metadata.yaml, written to a fresh temporary file (never through a planted link) and
     moved into place, so that a reader never sees half of it."""
-    fd, tmp = tempfile.mkstemp(prefix='.metadata-', suffix='.yaml.tmp', dir=directory)
+    from ..outputs import new_temporary
+    fd, tmp = new_temporary(directory, '.metadata-', '.yaml.tmp')
     try:
         with os.fdopen(fd, 'w', encoding='utf-8') as fh:
             fh.write(_yaml({'rosbag2_bagfile_information': dict(meta)}))
