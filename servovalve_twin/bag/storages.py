@@ -201,6 +201,7 @@ class _ChunkAt(NamedTuple):
 def _summary_records(fh, start: int, wanted):
     """``(opcode, body)`` of the summary section's records whose opcode is in ``wanted``, the
     others skipped by their length unparsed (a 4 GB bag has ~250 k chunk indexes)."""
+    size = fh.seek(0, 2)
     fh.seek(start)
     while True:
         head = fh.read(9)
@@ -209,11 +210,10 @@ def _summary_records(fh, start: int, wanted):
         op, length = _RECORD_HEAD.unpack(head)
         if op == _OP_FOOTER:
             return
+        if fh.tell() + length > size:       # a damaged length: refused before any read
+            raise EOFError('a summary record runs past the end of the file')
         if op in wanted:
-            body = fh.read(length)
-            if len(body) < length:
-                raise EOFError('a summary record runs past the end of the file')
-            yield op, body
+            yield op, fh.read(length)
         else:
             fh.seek(length, 1)
 

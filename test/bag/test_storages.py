@@ -87,3 +87,33 @@ def test_a_message_outside_its_chunks_stated_time_is_corrupt(tmp_path, monkeypat
     monkeypatch.setattr(storages, '_in_chunk_order', lying)
     with pytest.raises(BagError, match='corrupt'):
         list(McapStorage().messages(f, None, None, None))
+
+
+@pytest.mark.parametrize('record', [0, -1])
+def test_a_summary_record_with_a_damaged_length(tmp_path, record):
+    """A summary record's length field flipped to 2**40 (the first record, a schema; the last,
+    before the footer): the reader refuses it as corrupt, or reads the intact data section,
+    in bounded memory (a reader that allocated the length it read would take 1 TB)."""
+    import struct
+    import tracemalloc
+    f = _write(tmp_path / 'b.mcap', [[('/a', 1), ('/b', 2)], [('/a', 3)]])
+    data = bytearray(f.read_bytes())
+    start = struct.unpack_from('<Q', data, len(data) - 8 - 20)[0]
+    heads, pos = [], start
+    while data[pos] != 0x02:                        # the summary's records up to the footer
+        heads.append(pos)
+        pos += 9 + struct.unpack_from('<Q', data, pos + 1)[0]
+    struct.pack_into('<Q', data, heads[record] + 1, 1 << 40)
+    f.write_bytes(bytes(data))
+    tracemalloc.start()
+    try:
+        got = list(McapStorage().messages(f, None, None, None))
+    except BagError as exc:
+        got = str(exc)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 16 << 20, peak
+    if isinstance(got, str):
+        assert 'corrupt' in got, got
+    else:                                           # read from the intact data section
+        assert [(t, ns) for t, ns, _ in got] == [('/a', 1), ('/b', 2), ('/a', 3)]
