@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import TwinError
 from ..outputs import output_file
+from ..physics.signals import INPUTS
 
 #: signals compared, with their display unit and scale
 COMPARED = {'xj': ('XJ', 'mm', 1e3), 'dxj': ('DXJ', 'mm/s', 1e3), 'p12': ('P12', 'MPa', 1e-6),
@@ -392,7 +393,7 @@ def _input_steps(rows: Mapping[str, np.ndarray], prev: dict[str, float], cuts: s
     """Add to ``cuts`` the times at which Com, FR or PSR step within ``rows`` or from
     ``prev`` (each one's last value before them, updated)."""
     t = np.asarray(rows['t'])
-    for sig in ('com', 'fr', 'psr'):
+    for sig in INPUTS:
         if sig in rows and len(rows[sig]):
             v = np.asarray(rows[sig])
             if sig in prev and v[0] != prev[sig]:
@@ -415,9 +416,6 @@ def _phases_from_inputs(signals: Mapping[str, np.ndarray], max_phases: int = MAX
     cuts = {float(t[0]), float(t[-1])}
     _input_steps(signals, {}, cuts)
     return _phases(cuts, max_phases)
-
-
-INPUTS = ('com', 'fr', 'psr')
 
 
 def _same_inputs(ref: Mapping[str, np.ndarray], run: Mapping[str, np.ndarray], t: np.ndarray

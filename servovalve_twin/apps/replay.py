@@ -24,10 +24,10 @@ from ..config import default_bag_dir
 from ..errors import BagError, TwinError
 from ..physics.params import EhaParams
 from ..physics.scenario import Scenario, scenario_from_dict
+# the inputs a replay drives the twin with, in the order Scenario.inputs gives them
+from ..physics.signals import INPUTS
 
 
-#: the inputs a replay drives the twin with
-INPUTS = ('com', 'fr', 'psr')
 #: the most breakpoints a replayed input may have (~100 bytes each in the scenario, and the
 #: scenario is recorded in the new bag's provenance): a 1 kHz input that changes at every
 #: tick reaches it after 200 s
