@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import io
+import os
 import sqlite3
 import struct
 import zlib
@@ -137,12 +138,30 @@ def crc_of(fh, start: int, end: int) -> int:
     return crc
 
 
+#: files whose CRCs were verified, by identity and state (device, inode, size, modification
+#: and change times: any write changes the change time), so that opening a bag again -- a
+#: command opens it for its windows, its provenance and its rows -- does not read the whole
+#: file again (a 4.3 GB bag: six full reads in one `compare --plot`)
+_VERIFIED: set[tuple[int, ...]] = set()
+
+
 def check_data_crc(file: Path) -> None:
     """Verify an MCAP file's data-section CRC (the DataEnd record's), which covers what lies
     outside the chunks -- the metadata records, the twin's provenance among them -- and its
     summary CRC (the footer's), which covers the statistics and indexes. The mcap reader checks
     chunk CRCs but neither of these. A CRC of 0 means "not computed" (rosbag2 writes 0; so did
-    this project before CRCs)."""
+    this project before CRCs). Once per state of a file per process (:data:`_VERIFIED`)."""
+    st = os.stat(file)
+    state = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    if state in _VERIFIED:
+        return
+    _verify_crcs(file)
+    if len(_VERIFIED) > 1024:               # a long-lived process reading many bags
+        _VERIFIED.clear()
+    _VERIFIED.add(state)
+
+
+def _verify_crcs(file: Path) -> None:
     with open(file, 'rb') as fh:
         fh.seek(0, 2)
         size = fh.tell()

@@ -117,3 +117,30 @@ def test_a_summary_record_with_a_damaged_length(tmp_path, record):
         assert 'corrupt' in got, got
     else:                                           # read from the intact data section
         assert [(t, ns) for t, ns, _ in got] == [('/a', 1), ('/b', 2), ('/a', 3)]
+
+
+def test_a_files_crcs_are_read_once_per_state_of_the_file(tmp_path, monkeypatch):
+    """Opening a bag again does not read it again for its CRCs; a byte changed in place (same
+    size) is refused at the next open all the same."""
+    import numpy as np
+    from servovalve_twin.bag.anybag import open_any_bag
+    from servovalve_twin.bag.writer import BagWriter
+    w = BagWriter(tmp_path / 'b')
+    w.add_topic('/value', 'std_msgs/msg/Float64')
+    w.write_float64('/value', np.arange(100, dtype=np.int64) * 1_000_000, np.arange(100.0))
+    w.add_metadata('note', {'k': 'a value outside the chunks'})
+    w.close()
+    reads = []
+    crc_of = storages.crc_of
+    monkeypatch.setattr(storages, 'crc_of', lambda *a: reads.append(a[1:]) or crc_of(*a))
+    for _ in range(3):
+        open_any_bag(tmp_path / 'b').provenance
+    assert len(reads) == 2, reads                   # the summary's and the data section's
+    f = tmp_path / 'b' / 'b_0.mcap'
+    data = f.read_bytes()
+    at = data.index(b'a value outside the chunks')
+    with open(f, 'r+b') as fh:                      # in place: same size, same inode
+        fh.seek(at)
+        fh.write(b'A')
+    with pytest.raises(BagError, match='CRC of its data section does not match'):
+        open_any_bag(tmp_path / 'b')
