@@ -73,14 +73,22 @@ def test_the_compiled_loops_give_the_jits_bytes(built, model, monkeypatch):
 
 def test_a_module_of_other_physics_or_the_jit_asked_for_is_not_used(monkeypatch):
     """The module is named after the physics stamp: after an edit of the physics (another
-    stamp) its loops are not those of the source any more and must not be loaded; nor with
-    SERVOVALVE_TWIN_JIT set."""
+    stamp) its loops are not those of the source any more and must not be loaded; nor on
+    another processor (compiled for this one's instructions); nor with SERVOVALVE_TWIN_JIT
+    set."""
     name = aot.module_name()
     monkeypatch.setattr(aot, 'physics_stamp', lambda: b'\x01' * 32)
     assert aot.module_name() != name and aot.module_name().startswith(aot.PREFIX)
     aot._module.cache_clear()
     assert aot.aot_loop('steps', get_valve_model('C2').id) is None
     monkeypatch.undo()
+    if aot.cpu_tag():
+        assert name.endswith('_' + aot.cpu_tag())
+        monkeypatch.setattr(aot, 'cpu_tag', lambda: 'ffffffff')
+        assert aot.module_name() != name
+        aot._module.cache_clear()
+        assert aot.aot_loop('steps', get_valve_model('C2').id) is None
+        monkeypatch.undo()
     monkeypatch.setenv('SERVOVALVE_TWIN_JIT', '1')
     aot._module.cache_clear()
     assert aot.aot_loop('steps', get_valve_model('C2').id) is None

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import ModelError, ParameterError
 from .ecu import ecu_current_py
 from .faults import params_after as fault_params
-from .params import DEFAULTS, EhaParams
+from .params import DEFAULTS, EhaParams, stack_kernels
 from .plant import OUT_COLUMNS, TICK_OUT, TRUTH_COLUMNS, run_steps_for, run_tick
 from .scenario import Scenario, as_scenario
 from .sensors import N_STATE, SENSED, Sensors, sense_block, sensor_table, sensors_from_dict
@@ -192,7 +192,7 @@ def _fault_segments(model: ValveModel, scn: Scenario, p: EhaParams
     rows = [model.kernel_array(p)] + [model.kernel_array(fault_params(events, p, t * 1e-9))
                                       for t in times]
     start = [0] + [-(-t // p.dt_ns) for t in times]
-    return np.concatenate(rows), np.array(start, dtype=np.int64)
+    return stack_kernels(rows), np.array(start, dtype=np.int64)
 
 
 def valve_response(model_id: int, s: np.ndarray, vs: np.ndarray, kernel_arr: np.ndarray,

@@ -99,3 +99,20 @@ def test_the_reference_docs_list_every_parameter_and_fault():
     page = (ROOT / 'doc' / 'reference' / 'tables.md').read_text()
     for name in tables.TABLES:
         assert f'```{{twin-table}} {name}' in page
+
+
+def test_kernel_array_is_a_fresh_copy_of_the_kernel_each_call():
+    """The kernel array is built once per parameter set and kept on it, yet every call hands
+    out its own copy with the kernel's values; a cache keyed by equality would give the
+    parameters CLk = -0.0 the kernel of CLk = 0.0 (equal, not the same bits)."""
+    from servovalve_twin.physics.params import kernel_as_array
+    p = EhaParams()
+    a = p.kernel_array()
+    assert a.tobytes() == kernel_as_array(p.kernel()).tobytes()
+    a['CLk'] = 123.0                                  # the caller's copy only
+    b = p.kernel_array((2.5,))
+    assert b['VC0'][0] == 2.5 and b.tobytes() == kernel_as_array(p.kernel((2.5,))).tobytes()
+    assert p.kernel_array()['CLk'][0] == p.CLk
+    zero, neg = p.replace(CLk=0.0), p.replace(CLk=-0.0)
+    assert neg == zero and math.copysign(1.0, zero.kernel_array()['CLk'][0]) == 1.0
+    assert math.copysign(1.0, neg.kernel_array()['CLk'][0]) == -1.0

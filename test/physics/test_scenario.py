@@ -122,3 +122,36 @@ def test_steps_in_chunks_equal_a_per_sample_lookup(n_points):
         got = np.concatenate([prof.values(t_ns[a:a + chunk])
                               for a in range(0, t_ns.shape[0], chunk)])
         np.testing.assert_array_equal(got, want, err_msg=f'chunk {chunk}')
+
+
+def test_a_builtin_scenario_is_parsed_once_yet_each_caller_owns_its_copy(tmp_path, monkeypatch):
+    """Built-in scenarios are read and validated once per file state: a caller's changes to
+    what it got stay its own, a file changed in place or added to the folder is read again."""
+    import os
+    import shutil
+    from servovalve_twin import config
+    folder = tmp_path / 'scenarios'
+    folder.mkdir()
+    src = config.config_dir() / 'scenarios'
+    shutil.copy(src / 'paper.yaml', folder / 'paper.yaml')
+    monkeypatch.setattr(config, 'config_dir', lambda: tmp_path)
+    a = load_scenario('paper')
+    a.params['M'] = 99.0
+    a.windows['mine'] = (0.0, 0.1)
+    b = load_scenario('paper')
+    assert b == load_scenario(src / 'paper.yaml') and 'M' not in b.params
+    assert 'mine' not in b.windows
+    # a changed file: its new content (the modification time moved on, the size too)
+    text = (folder / 'paper.yaml').read_text()
+    (folder / 'paper.yaml').write_text(text + '\nparams: {M: 42.0}\n')
+    st = os.stat(folder / 'paper.yaml')
+    os.utime(folder / 'paper.yaml', ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert load_scenario('paper').params == {'M': 42.0}
+    # a file added to the folder is a built-in name at once
+    with pytest.raises(ScenarioError, match='unknown scenario'):
+        load_scenario('extra')
+    shutil.copy(src / 'paper.yaml', folder / 'extra.yaml')
+    dst = os.stat(folder)
+    os.utime(folder, ns=(dst.st_atime_ns, dst.st_mtime_ns + 10**9))
+    assert load_scenario('extra').com == b.com
+    assert set(config.builtin_scenarios()) == {'paper', 'extra'}
