@@ -13,7 +13,8 @@ The model (discrete in time, vectorized over particles):
 
 - **inputs** ``com`` [m], ``fr`` [N], ``psr`` [Pa], held over ``next_state``'s ``dt``;
 - **states** the plant's mechanical state (``xf``, ``dxf``, ``xs``, ``xj``, ``dxj``), the valve
-  model's own (``p12_warm``: its warm start; ``p1``, ``p2`` for a model with ports), ``p12``
+  model's own (``p12_warm``: its warm start; for a model with ports ``p1``, ``p2`` and the
+  call before's, ``p1_prev``, ``p2_prev``: HD's warm start extrapolates from both), ``p12``
   (the valve's response at the state, with the supply of the last step: an output kept as a
   state, since the valve is algebraic) and one *degradation state* per fault of
   ``degradation`` -- its severity in the catalog's units (:data:`~.physics.faults.FAULTS`),
@@ -58,7 +59,7 @@ from .physics.plant import TICK_OUT, run_tick
 from .physics.servovalve import PLANT_STATE, S_SIZE, S_XJ
 from .physics.simulate import steps_per, valve_response
 from .physics.signals import MEASURED
-from .physics.valve_state import V_P1, V_P2, V_P12
+from .physics.valve_state import V_P1, V_P1_PREV, V_P2, V_P2_PREV, V_P12
 from .physics.valves import get_valve_model
 
 #: with ``scaled=True``, each state is carried divided by a power of two near its magnitude on
@@ -67,7 +68,9 @@ from .physics.valves import get_valve_model
 #: UnscentedKalmanFilter factorises one; in SI units its Cholesky fails)
 STATE_SCALE = {'xf': 2.0 ** -15, 'dxf': 2.0 ** -6, 'xs': 2.0 ** -13, 'xj': 2.0 ** -5,
                'dxj': 2.0 ** -2, 'p12_warm': 2.0 ** 24, 'p1': 2.0 ** 24, 'p2': 2.0 ** 24,
-               'p12': 2.0 ** 24}
+               'p1_prev': 2.0 ** 24, 'p2_prev': 2.0 ** 24, 'p12': 2.0 ** 24}
+#: the valve-state slots a model with ports carries as states
+PORT_SLOTS = {'p1': V_P1, 'p2': V_P2, 'p1_prev': V_P1_PREV, 'p2_prev': V_P2_PREV}
 #: parameter sets kept per model: a particle filter's particles share few exact severities
 #: between resamplings, a deterministic run only one
 KERNEL_CACHE = 4096
@@ -102,7 +105,7 @@ class EhaModel(PrognosticsModel):
         self.degradation = tuple(degradation)
         self.control_period = float(control_period)
         self.n_sub = steps_per(control_period, self.nominal, 'the control period')
-        ports = ('p1', 'p2') if self.valve.has_ports else ()
+        ports = tuple(PORT_SLOTS) if self.valve.has_ports else ()
         self.states = list(PLANT_STATE) + ['p12_warm', *ports, 'p12', *self.degradation,
                                            *(f'{f}_growth' for f in self.degradation)]
         self.events = [f'{f}_alarm' for f in self.degradation]
@@ -167,8 +170,8 @@ class EhaModel(PrognosticsModel):
         s = col[:S_SIZE].copy()
         vs = self.valve.initial_state(self.nominal)
         vs[V_P12] = col[self._i_warm]
-        if self._i_ports:
-            vs[V_P1], vs[V_P2] = col[self._i_ports[0]], col[self._i_ports[1]]
+        for i, slot in zip(self._i_ports, PORT_SLOTS.values()):
+            vs[slot] = col[i]
         out = np.empty(len(TICK_OUT))
         for _ in range(periods):
             cor = ecu_current_py(com, float(s[S_XJ]), kern)
@@ -188,8 +191,8 @@ class EhaModel(PrognosticsModel):
         (on copies, so the run's warm start stays that of its integration steps, as in
         simulate())."""
         col[self._i_warm] = vs[V_P12]
-        if self._i_ports:
-            col[self._i_ports[0]], col[self._i_ports[1]] = vs[V_P1], vs[V_P2]
+        for i, slot in zip(self._i_ports, PORT_SLOTS.values()):
+            col[i] = vs[slot]
         col[self._i_p12] = valve_response(self.valve.id, col[:S_SIZE], vs, arr, fr, psr)[0]
 
     def _periods(self, dt: float) -> int:

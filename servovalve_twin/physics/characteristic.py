@@ -49,8 +49,8 @@ def characteristic(valve_model: str, params: EhaParams, psr: float, qj: Sequence
             p12 = model.fn(float(xs), float(q), float(psr), P, vs)
             failed = bool(vs[V_FAIL])
             if failed:
-                # no steady state here (e.g. HD at null with a tiny clearance and a forced
-                # flow): a blank point, counted, and the sweep goes on from rest
+                # no steady state found here (an iterative model's solver failed): a blank
+                # point, counted, and the sweep goes on from rest
                 vs = model.initial_state(p)
             cols['xs'].append(float(xs))
             cols['qj'].append(float(q))

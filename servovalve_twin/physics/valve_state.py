@@ -19,7 +19,9 @@ V_FAIL = 8      # 1 when a model could not compute a value (HD solver failure): 
 V_XJ = 9        # jack position [m] written by the plant before each call (compressible HD)
 V_CALLS = 10    # number of calls since reset
 V_ITSUM = 11    # iterations summed over the calls since reset (mean = V_ITSUM/V_CALLS)
-VS_SIZE = 12
+V_P1_PREV = 12  # HD: port pressures of the call before the last (the warm start's trend)
+V_P2_PREV = 13
+VS_SIZE = 14
 
 
 def new_state(ps_mid: float = np.nan) -> np.ndarray:
@@ -27,4 +29,6 @@ def new_state(ps_mid: float = np.nan) -> np.ndarray:
     vs = np.zeros(VS_SIZE)
     vs[V_P1] = ps_mid
     vs[V_P2] = ps_mid
+    vs[V_P1_PREV] = ps_mid            # at rest: no trend
+    vs[V_P2_PREV] = ps_mid
     return vs

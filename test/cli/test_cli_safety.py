@@ -321,10 +321,25 @@ def test_ctrl_c_while_a_console_script_imports_is_one_line(monkeypatch, capsys):
         assert capsys.readouterr().err == 'interrupted while starting\n'
 
 
-def test_characteristic_leaves_points_without_steady_state_blank(tmp_path, capsys):
-    """At XS = 0 with a 0.2 nm clearance HD has no steady state under a forced flow: the point
-    is left blank (NaN) and counted; the rest of the curve is drawn."""
+def test_characteristic_leaves_points_without_steady_state_blank(tmp_path, capsys,
+                                                                monkeypatch):
+    """A point where HD finds no steady state is left blank (NaN) and counted; the rest of the
+    curve is drawn, the sweep going on from rest. (XS = 0 with a 0.2 nm clearance under a
+    forced flow of 4e-5 m^3/s was such a point until HD's start extrapolated the sweep: it
+    has one, P12 = -110 MPa, in line with -210 and -310 MPa at twice and three times the
+    flow. No HD point fails now, so the failure is made here, at that point.)"""
+    import dataclasses
+    from servovalve_twin.physics import valves
+    from servovalve_twin.physics.valve_state import V_FAIL
     from servovalve_twin.runs import read_csv
+    hd = valves.VALVE_MODELS['HD']
+
+    def failing_at_null(xs, qj, psr, P, vs):
+        p12 = hd.fn(xs, qj, psr, P, vs)
+        if xs == 0.0 and qj == 4e-5:
+            vs[V_FAIL] = 1.0
+        return p12
+    monkeypatch.setitem(valves.VALVE_MODELS, 'HD', dataclasses.replace(hd, fn=failing_at_null))
     assert main(['characteristic', '--valve-model', 'HD', '--param', 'c=2e-10', '--points',
                  '41', '--out', str(tmp_path / 'c.csv'), '--plot', str(tmp_path / 'c.png')]) == 0
     assert '1 of 164 points have no steady state' in capsys.readouterr().out
