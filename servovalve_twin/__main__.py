@@ -2,6 +2,9 @@
 
 import sys
 
-from .cli import main
+from .entry import one_blas_thread
+
+one_blas_thread()
+from .cli import main  # noqa: E402 -- after the BLAS setting, which must precede numpy
 
 sys.exit(main())

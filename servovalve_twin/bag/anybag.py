@@ -24,6 +24,7 @@ from typing import Any, Iterable, Iterator
 import yaml
 
 from ..errors import BagError
+from . import safe_load
 from .provenance import PROVENANCE, Provenance, from_custom_data
 from .storages import STORAGES, Storage, TopicInfo, normalise_qos, storage_of
 
@@ -212,7 +213,7 @@ def _read_metadata(d: Path) -> dict[str, Any] | None:
         raise BagError(f'{str(f)!r} is {f.stat().st_size / 2 ** 20:.0f} MiB; a rosbag2 '
                        f'metadata.yaml is at most {METADATA_LIMIT // 2 ** 20} MiB here')
     try:
-        raw = yaml.safe_load(f.read_text(encoding='utf-8'))
+        raw = safe_load(f.read_text(encoding='utf-8'))
     except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
         raise BagError(f'{str(f)!r} is not readable YAML ({type(exc).__name__})') from None
     info = raw.get('rosbag2_bagfile_information') if isinstance(raw, dict) else None

@@ -18,6 +18,7 @@ from typing import Any, Mapping
 import yaml
 
 from ..errors import BagError, TwinError
+from . import safe_load
 
 #: the MCAP metadata record's name, and the prefix of its keys in ``custom_data``
 PROVENANCE = 'servovalve_twin'
@@ -126,7 +127,7 @@ def _yaml_map(text: str | None, what: str) -> dict[str, Any]:
     if not text:
         return {}
     try:
-        value = yaml.safe_load(text)
+        value = safe_load(text)
     except yaml.YAMLError:
         raise BagError(f'{what} is not readable YAML') from None
     except RecursionError:

@@ -23,9 +23,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
-import yaml
-
 from ..errors import BagError
+from . import safe_load
 from .storages import STORAGES, crc_of, storage_of
 from .writer import READ_ONLY_DIRS, BagWriter, _inside, write_metadata_yaml
 
@@ -227,7 +226,7 @@ def _rebuild_mcap(file: Path, out_dir: Path) -> tuple[dict[str, Any], dict[str, 
         schema = scan.schemas.get(ch.schema_id)
         if schema is not None:
             qos = ch.metadata.get('offered_qos_profiles')
-            writer.add_topic(ch.topic, schema.name, yaml.safe_load(qos) if qos else None,
+            writer.add_topic(ch.topic, schema.name, safe_load(qos) if qos else None,
                              definition=schema.data)
     dropped = 0
     with open(file, 'rb') as fh:
@@ -259,7 +258,7 @@ def _count_back(directory: Path, files: list[str]) -> dict[str, int]:
 def _custom_data(bag_dir: Path) -> dict[str, str] | None:
     """The user's ``custom_data`` of an existing metadata.yaml (kept across a rebuild)."""
     try:
-        raw = yaml.safe_load((bag_dir / 'metadata.yaml').read_text(encoding='utf-8'))
+        raw = safe_load((bag_dir / 'metadata.yaml').read_text(encoding='utf-8'))
         custom = raw['rosbag2_bagfile_information'].get('custom_data')
     except Exception:  # noqa: BLE001 -- absent or unreadable: there is nothing to keep
         return None

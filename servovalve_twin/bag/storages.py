@@ -25,6 +25,7 @@ from typing import Any, Iterator, NamedTuple
 import yaml
 
 from ..errors import BagError
+from . import safe_load
 
 # what a damaged file raises inside the mcap library besides its own McapError
 _CORRUPT = (EOFError, struct.error, ValueError, KeyError, IndexError, UnicodeDecodeError,
@@ -47,7 +48,7 @@ def normalise_qos(raw: Any) -> list[dict[str, Any]]:
     list, a v4-8 YAML string, integer or name policies; [] when absent or unreadable."""
     if isinstance(raw, str):
         try:
-            raw = yaml.safe_load(raw) if raw.strip() else []
+            raw = safe_load(raw) if raw.strip() else []
         except yaml.YAMLError:
             return []
     if not isinstance(raw, list):

@@ -158,15 +158,10 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
     out = np.full((n_units, n_rows, len(OUT_COLUMNS)), np.nan)
     carry = np.zeros((n_units, 2))
     fail = np.full(n_units, -1, dtype=np.int64)
-    steps = np.arange(min(CHUNK_STEPS, n_steps + 1), dtype=np.int64)
-    t_buf = np.empty_like(steps)
-    u_buf = np.empty((3, steps.shape[0]))
     run = run_fleet_for(model.id)
     for i0 in range(0, n_steps + 1, CHUNK_STEPS):
         m = min(CHUNK_STEPS, n_steps + 1 - i0)
-        t_ns = np.add(steps[:m], i0, out=t_buf[:m])
-        t_ns *= dt_ns
-        com, fr, psr = scn.inputs(t_ns, u_buf[:, :m])
+        com, fr, psr = scn.grid_inputs(i0 * dt_ns, dt_ns, m)     # as simulate() takes them
         run(s, vs, P_arr, seg_start, com, fr, psr, i0, n_steps, ecu_every, out_every, carry,
             out, OUTPUT_PERIOD_NS * 1e-9, fail)
         if np.all(fail >= 0):

@@ -31,7 +31,8 @@ from .valves import ValveModel, get_valve_model
 
 OUTPUT_PERIOD_NS = 1_000_000     # output rows every 1 ms
 #: steps per chunk: simulate() evaluates the inputs and runs the compiled loop chunk by chunk,
-#: so its memory is that of the output rows plus one chunk (~2 MB), whatever the run's length;
+#: so its memory is that of the output rows plus a few chunks' inputs (the scenario keeps its
+#: last four per signal: ~6 MB, :data:`~.scenario.GRID_CACHE`), whatever the run's length;
 #: 2**16 rather than 2**14 steps: fewer chunk entries (numpy calls, the loop call) per run;
 #: 2**17 measured no faster here (bench_physics, interleaved)
 CHUNK_STEPS = 1 << 16
@@ -156,16 +157,11 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
         s[PLANT_STATE.index(name)] = float(value)
     vs = model.initial_state(p)
     carry = np.zeros(2)             # Cor and the parameter segment, carried between chunks
-    # one buffer for the chunk's times and one per input, reused chunk after chunk
-    steps = np.arange(min(CHUNK_STEPS, n_steps + 1), dtype=np.int64)
-    t_buf = np.empty_like(steps)
-    u_buf = np.empty((3, steps.shape[0]))
     run_steps = run_steps_for(model.id, bool(sens))
     for i0 in range(0, n_steps + 1, CHUNK_STEPS):
         m = min(CHUNK_STEPS, n_steps + 1 - i0)
-        t_ns = np.add(steps[:m], i0, out=t_buf[:m])
-        t_ns *= p.dt_ns
-        com, fr, psr = scn.inputs(t_ns, u_buf[:, :m])
+        # the chunk's inputs, kept by the scenario for the next run of it (a fit's hundreds)
+        com, fr, psr = scn.grid_inputs(i0 * p.dt_ns, p.dt_ns, m)
         failed = run_steps(s, vs, kernels, seg_start, com, fr, psr, i0, n_steps,
                            ecu_every, out_every, carry, out, OUTPUT_PERIOD_NS * 1e-9,
                            spec, keys, held, ecu_every or out_every)

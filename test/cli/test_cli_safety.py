@@ -433,3 +433,29 @@ def test_replay_into_an_existing_directory_needs_overwrite(tmp_path, capsys):
     assert main(['replay', '@paper_HD', '--valve-model', 'C2', '--out', str(out),
                  '--overwrite']) == 0
     assert (out / 'mine.txt').read_text() == 'keep'
+
+
+def test_the_command_line_runs_openblas_on_one_thread_unless_told():
+    """``servovalve-twin`` sets OpenBLAS to one thread before numpy starts its pool (a thread
+    per core, 0.16 s of CPU per process for a fit's few-column matrices); a user's own
+    OPENBLAS_NUM_THREADS is kept. Counted as the process's threads after a command ran."""
+    import os
+    import subprocess
+    import sys
+    code = '''
+import contextlib, io, os, sys
+from servovalve_twin import entry
+sys.argv = ['servovalve-twin', 'params']
+with contextlib.redirect_stdout(io.StringIO()):
+    entry.cli()
+print(len(os.listdir('/proc/self/task')), os.environ.get('OPENBLAS_NUM_THREADS'))
+'''
+    env = {k: v for k, v in os.environ.items() if k != 'OPENBLAS_NUM_THREADS'}
+
+    def threads(**extra):
+        out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                             env={**env, **extra}, check=True).stdout.split()
+        return int(out[0]), out[1]
+    assert threads() == (1, '1')
+    if (os.cpu_count() or 1) > 1:
+        assert threads(OPENBLAS_NUM_THREADS='2') == (2, '2')

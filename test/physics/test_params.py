@@ -116,3 +116,21 @@ def test_kernel_array_is_a_fresh_copy_of_the_kernel_each_call():
     zero, neg = p.replace(CLk=0.0), p.replace(CLk=-0.0)
     assert neg == zero and math.copysign(1.0, zero.kernel_array()['CLk'][0]) == 1.0
     assert math.copysign(1.0, neg.kernel_array()['CLk'][0]) == -1.0
+
+
+def test_replace_checks_what_it_changes_and_leaves_the_kernels_behind():
+    """replace() re-checks only the changed fields and the cross checks: its result equals
+    the instance built from scratch with every field checked, a bad change is refused, and
+    the original's kernel arrays (kept on it) do not travel to the copy."""
+    import dataclasses
+    p = EhaParams()
+    p.kernel_array()
+    q = p.replace(M=400.0, CLk='2e-12')
+    assert q == EhaParams(**{**{f.name: getattr(p, f.name) for f in dataclasses.fields(p)},
+                             'M': 400.0, 'CLk': 2e-12})
+    assert q.kernel_array()['M'][0] == 400.0 and q.kernel_array()['CLk'][0] == 2e-12
+    assert p.kernel_array()['M'][0] == p.M
+    with pytest.raises(ParameterError, match='must not exceed the static friction'):
+        q.replace(FDJ=q.FSJ * 2)                       # a cross check on a changed field
+    with pytest.raises(ParameterError, match='out of range'):
+        q.replace(DT=0.0)

@@ -155,3 +155,22 @@ def test_a_builtin_scenario_is_parsed_once_yet_each_caller_owns_its_copy(tmp_pat
     os.utime(folder, ns=(dst.st_atime_ns, dst.st_mtime_ns + 10**9))
     assert load_scenario('extra').com == b.com
     assert set(config.builtin_scenarios()) == {'paper', 'extra'}
+
+
+def test_a_profile_keeps_its_last_grids_and_no_more():
+    """Profile.grid: the values on a time grid (those of values() at those instants),
+    computed once and handed out again while among the last GRID_CACHE grids; an older one is
+    dropped (a long run's chunks must not pile up) and computed afresh when asked again."""
+    from servovalve_twin.physics.scenario import GRID_CACHE
+    s = load_scenario('paper')
+    first = s.psr.grid(0, 10_000, 50_000)
+    t_ns = np.arange(50_000, dtype=np.int64) * 10_000
+    assert np.array_equal(first, s.psr.values(t_ns))
+    assert first[34_999] == 20e6 and first[35_000] == 12e6      # MODELS.md section 9
+    assert s.psr.grid(0, 10_000, 50_000) is first
+    assert not np.array_equal(s.psr.grid(10_000, 10_000, 50_000), first)   # another grid
+    for k in range(GRID_CACHE):
+        s.psr.grid(k, 10_000, 10)
+    again = s.psr.grid(0, 10_000, 50_000)
+    assert again is not first and np.array_equal(again, first)
+    assert len(s.psr.__dict__['_grids']) == GRID_CACHE
