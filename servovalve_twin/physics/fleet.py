@@ -20,7 +20,7 @@ from ..jitcache import jit
 from .ecu import ecu_current
 from .jack import jack_advance
 from .plant import OUT_COLUMNS, own_cache_name, valve_p12_inline
-from .scenario import Scenario, as_scenario
+from .scenario import GridBuffers, Scenario, as_scenario
 from .servovalve import PLANT_STATE, S_DXF, S_DXJ, S_SIZE, S_XF, S_XJ, S_XS, servovalve_advance
 from .simulate import (CHUNK_STEPS, CSV_COLUMNS, OUTPUT_PERIOD_NS, PORT_COLUMNS, RunResult,
                        _fault_segments, effective_params, steps_per)
@@ -159,9 +159,10 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
     carry = np.zeros((n_units, 2))
     fail = np.full(n_units, -1, dtype=np.int64)
     run = run_fleet_for(model.id)
+    buffers = GridBuffers.reused(min(CHUNK_STEPS, n_steps + 1))
     for i0 in range(0, n_steps + 1, CHUNK_STEPS):
         m = min(CHUNK_STEPS, n_steps + 1 - i0)
-        com, fr, psr = scn.grid_inputs(i0 * dt_ns, dt_ns, m)     # as simulate() takes them
+        com, fr, psr = scn.grid_inputs(i0 * dt_ns, dt_ns, m, buffers)   # as simulate() does
         run(s, vs, P_arr, seg_start, com, fr, psr, i0, n_steps, ecu_every, out_every, carry,
             out, OUTPUT_PERIOD_NS * 1e-9, fail)
         if np.all(fail >= 0):

@@ -23,7 +23,7 @@ from .ecu import ecu_current_py
 from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams, stack_kernels
 from .plant import OUT_COLUMNS, TICK_OUT, TRUTH_COLUMNS, run_steps_for, run_tick
-from .scenario import Scenario, as_scenario
+from .scenario import GridBuffers, Scenario, as_scenario
 from .sensors import N_STATE, SENSED, Sensors, sense_block, sensor_table, sensors_from_dict
 from .servovalve import PLANT_STATE, S_DXJ, S_SIZE, S_XJ, S_XS
 from .signals import COMMON, PORTS
@@ -158,10 +158,11 @@ def simulate(valve_model: str, scenario: Scenario | Mapping,
     vs = model.initial_state(p)
     carry = np.zeros(2)             # Cor and the parameter segment, carried between chunks
     run_steps = run_steps_for(model.id, bool(sens))
+    buffers = GridBuffers.reused(min(CHUNK_STEPS, n_steps + 1))
     for i0 in range(0, n_steps + 1, CHUNK_STEPS):
         m = min(CHUNK_STEPS, n_steps + 1 - i0)
-        # the chunk's inputs, kept by the scenario for the next run of it (a fit's hundreds)
-        com, fr, psr = scn.grid_inputs(i0 * p.dt_ns, p.dt_ns, m)
+        # the chunk's inputs, kept by the scenario when it is run again (a fit's hundreds)
+        com, fr, psr = scn.grid_inputs(i0 * p.dt_ns, p.dt_ns, m, buffers)
         failed = run_steps(s, vs, kernels, seg_start, com, fr, psr, i0, n_steps,
                            ecu_every, out_every, carry, out, OUTPUT_PERIOD_NS * 1e-9,
                            spec, keys, held, ecu_every or out_every)

@@ -157,20 +157,28 @@ def test_a_builtin_scenario_is_parsed_once_yet_each_caller_owns_its_copy(tmp_pat
     assert set(config.builtin_scenarios()) == {'paper', 'extra'}
 
 
-def test_a_profile_keeps_its_last_grids_and_no_more():
-    """Profile.grid: the values on a time grid (those of values() at those instants),
-    computed once and handed out again while among the last GRID_CACHE grids; an older one is
-    dropped (a long run's chunks must not pile up) and computed afresh when asked again."""
-    from servovalve_twin.physics.scenario import GRID_CACHE
+def test_a_profile_keeps_the_grids_asked_for_again_and_no_more():
+    """Profile.grid: the values on a time grid (those of values() at those instants). Asked
+    for once, a grid is computed into the caller's buffer and not kept (a scenario run once
+    must not pay for fresh arrays); asked for again, it is kept and handed out while among
+    the last GRID_CACHE grids; an older one is dropped (a long run's chunks must not pile
+    up)."""
+    from servovalve_twin.physics.scenario import GRID_CACHE, GridBuffers
     s = load_scenario('paper')
-    first = s.psr.grid(0, 10_000, 50_000)
     t_ns = np.arange(50_000, dtype=np.int64) * 10_000
-    assert np.array_equal(first, s.psr.values(t_ns))
-    assert first[34_999] == 20e6 and first[35_000] == 12e6      # MODELS.md section 9
-    assert s.psr.grid(0, 10_000, 50_000) is first
-    assert not np.array_equal(s.psr.grid(10_000, 10_000, 50_000), first)   # another grid
+    want = s.psr.values(t_ns)
+    assert want[34_999] == 20e6 and want[35_000] == 12e6      # MODELS.md section 9
+    buffers = GridBuffers(50_000)
+    once = s.psr.grid(0, 10_000, 50_000, buffers)
+    assert np.array_equal(once, want) and np.shares_memory(once, buffers.values(0))
+    kept = s.psr.grid(0, 10_000, 50_000, buffers)
+    assert np.array_equal(kept, want) and not np.shares_memory(kept, once)
+    assert s.psr.grid(0, 10_000, 50_000, buffers) is kept
+    shifted = s.psr.grid(10_000, 10_000, 50_000, buffers)        # another grid, same buffers
+    assert np.array_equal(shifted, s.psr.values(t_ns + 10_000))
+    assert np.array_equal(kept, want)                             # the kept one untouched
     for k in range(GRID_CACHE):
         s.psr.grid(k, 10_000, 10)
-    again = s.psr.grid(0, 10_000, 50_000)
-    assert again is not first and np.array_equal(again, first)
-    assert len(s.psr.__dict__['_grids']) == GRID_CACHE
+        s.psr.grid(k, 10_000, 10)
+    assert len(s.psr.__dict__['_grids'][0]) == GRID_CACHE
+    assert s.psr.grid(0, 10_000, 50_000) is not kept                # dropped, made afresh
