@@ -72,6 +72,7 @@ def _ns(t: float) -> int:
 #: :data:`~.simulate.CHUNK_STEPS` (2.6 s at DT = 1e-5 s) finds every chunk's inputs there on
 #: its next run; at most 2 MB a profile
 GRID_CACHE = 4
+_GRID_LOCK = threading.Lock()
 
 
 class GridBuffers:
@@ -167,23 +168,29 @@ class Profile:
         not pay for fresh arrays. What is returned may be shared between callers, or
         overwritten by the next grid computed in ``buffers``: read it at once, never write
         it."""
-        kept, seen = self.__dict__.get('_grids') or self._new_grids()
         key = (int(t0_ns), int(step_ns), int(n))
-        arr = kept.get(key)
-        if arr is not None:
-            kept.move_to_end(key)
-            return arr
+        with _GRID_LOCK:        # threads may run one scenario at once (a lock costs ~0.1 us)
+            kept, seen = self.__dict__.get('_grids') or self._new_grids()
+            arr = kept.get(key)
+            if arr is not None:
+                kept.move_to_end(key)
+                return arr
+            first = key not in seen
+            if first:
+                seen[key] = None
+                while len(seen) > GRID_CACHE:
+                    seen.popitem(last=False)
+            else:
+                del seen[key]
         buffers = buffers or GridBuffers(key[2])
         t_ns = buffers.times(*key)
-        if key not in seen:
-            seen[key] = None
-            while len(seen) > GRID_CACHE:
-                seen.popitem(last=False)
+        if first:
             return self.values(t_ns, buffers.values(slot))
-        del seen[key]
-        arr = kept[key] = self.values(t_ns)
-        while len(kept) > GRID_CACHE:
-            kept.popitem(last=False)
+        arr = self.values(t_ns)
+        with _GRID_LOCK:
+            kept[key] = arr
+            while len(kept) > GRID_CACHE:
+                kept.popitem(last=False)
         return arr
 
     def _new_grids(self) -> tuple[collections.OrderedDict, collections.OrderedDict]:
