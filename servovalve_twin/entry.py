@@ -58,7 +58,7 @@ def one_blas_thread() -> None:
     """OpenBLAS to one thread unless the user set ``OPENBLAS_NUM_THREADS``: before numpy is
     imported, which starts OpenBLAS's pool of a thread per core. The command line's own linear
     algebra is a fit's few-column Jacobians, and starting the pools of numpy's and scipy's
-    OpenBLAS cost a ``diagnose`` process 0.16 s of CPU (bench_diagnosis; the JSON identical).
+    OpenBLAS cost a ``diagnose`` process 0.16 s of CPU (farm-bench, paired; its JSON identical).
     Not for the ROS executables: ``algorithm`` runs a user's algorithm, which may want them."""
     os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 

@@ -163,8 +163,8 @@ def test_a_profile_keeps_the_grids_asked_for_again_and_no_more():
     must not pay for fresh arrays); asked for again, it is kept and handed out while among
     the last GRID_CACHE grids; an older one is dropped (a long run's chunks must not pile
     up)."""
-    from servovalve_twin.physics.scenario import GRID_CACHE, GridBuffers
-    s = load_scenario('paper')
+    from servovalve_twin.physics.scenario import GRID_CACHE, GridBuffers, scenario_from_dict
+    s = scenario_from_dict(load_scenario('paper').to_dict())     # profiles of its own
     t_ns = np.arange(50_000, dtype=np.int64) * 10_000
     want = s.psr.values(t_ns)
     assert want[34_999] == 20e6 and want[35_000] == 12e6      # MODELS.md section 9
