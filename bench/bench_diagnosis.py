@@ -44,6 +44,8 @@ SCENARIOS = {
 def one(job):
     kind, fault, q, scen, seed, spread, free = job
     t0 = time.perf_counter()
+    if kind == 'flight':
+        return healthy_on(scen, seed, spread, free)
     flight = SCENARIOS.get(scen, scen)            # a bench flight, or a built-in / file
     if kind == 'inside':
         sig, truth, _ = unit_signals(None if fault == HEALTHY else fault, q, flight, seed,
@@ -73,6 +75,55 @@ def one(job):
                 p=d.p_value, also=d.also_consistent_with, seconds=time.perf_counter() - t0)
 
 
+def healthy_on(flight, seed: int, spread: float, free) -> dict:
+    """A healthy HD unit (nuisance at ``spread`` x the documented spread, noise 0.5-2 x) flown
+    on ``flight`` (a built-in name or a scenario mapping), its scheduled faults removed and its
+    parameter overrides made the design, diagnosed against that design."""
+    from servovalve_twin.config import load_scenario
+    t0 = time.perf_counter()
+    raw = load_scenario(flight).to_dict()
+    design = DEFAULTS.replace(**(raw.pop('params', None) or {}))
+    raw.pop('faults', None)
+    sig, _, _ = unit_signals(None, 0.0, raw, seed, spread=spread, design=design)
+    name = raw['name']
+    d = diagnose(sig, design, control_period=1e-3, model='SQ', free=free,
+                 scenario=name if name in CAL_SCENARIOS else None)
+    return dict(kind='flight', scen=name, named=d.verdict or d.best.fault, p=d.p_value,
+                seconds=time.perf_counter() - t0)
+
+
+def healthy_flights(units: int, seed: int, spread: float, free) -> None:
+    """``--healthy-flights``: healthy units on every built-in scenario and on the monitor
+    bench's unseen flights (two chirps, four random step sequences of their own seeds): what
+    ``diagnose`` says of an actuator with no fault, flight by flight."""
+    from bench_monitor import flights
+    from bench_physics import machine
+    fl = flights(seed + 100)                     # bench_monitor's default flights at seed 1
+    base = seed * 3_333_331 + 17                 # never a calibration seed (those are 7e6+)
+    jobs = [('flight', None, 0.0, spec, base + k * units + u, spread, free)
+            for k, spec in enumerate(fl.values()) for u in range(units)]
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        res = list(pool.map(one, jobs))
+    print(f'machine: {machine()}; {len(jobs)} healthy HD units ({units} per flight), nuisance '
+          f'x{spread:g} the documented spread, noise 0.5-2x; SQ, free {",".join(free) or "none"}'
+          f'; {time.perf_counter() - t0:.0f} s')
+    print('\n| flight | units | healthy | unexplained | a fault named | lowest goodness-of-fit p |')
+    print('|---|---|---|---|---|---|')
+    for name in dict.fromkeys(r['scen'] for r in res):
+        rows = [r for r in res if r['scen'] == name]
+        faults = sorted({r['named'] for r in rows} - {HEALTHY, UNEXPLAINED})
+        named = sum(r['named'] not in (HEALTHY, UNEXPLAINED) for r in rows)
+        ps = [r['p'] for r in rows if r['p'] is not None]
+        lowest = f'{min(ps):.3g}' if ps else '-'
+        which = f' ({", ".join(faults)})' if faults else ''
+        print(f'| {name} | {len(rows)} | {sum(r["named"] == HEALTHY for r in rows)} | '
+              f'{sum(r["named"] == UNEXPLAINED for r in rows)} | {named}{which} | {lowest} |')
+    alarms = sum(r['named'] != HEALTHY for r in res)
+    print(f'\nfalse alarms (a fault named or unexplained): {alarms}/{len(res)}; one diagnosis: '
+          f'median {statistics.median(r["seconds"] for r in res):.2f} s')
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--units', type=int, default=4, help='units per fault, level, scenario')
@@ -80,11 +131,17 @@ def main() -> None:
     ap.add_argument('--spread', type=float, default=1.5)
     ap.add_argument('--free', default='M,CJ')
     ap.add_argument('--scenarios', default='paper,eval_steps')
+    ap.add_argument('--healthy-flights', type=int, default=0, metavar='N',
+                    help='instead: N healthy units on every built-in scenario and on unseen '
+                         'chirps and random steps, the false alarms of diagnose')
     args = ap.parse_args()
     free = tuple(sorted(n for n in args.free.split(',') if n))
     scens = args.scenarios.split(',')
     sys.path.insert(0, 'bench')
     from bench_physics import machine
+    if args.healthy_flights:
+        healthy_flights(args.healthy_flights, args.seed, args.spread, free)
+        return
     jobs, k = [], 0
     base = args.seed * 7_777_777 + 13           # never a calibration seed (those are 7e6+)
     for scen in scens:

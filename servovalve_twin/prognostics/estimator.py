@@ -84,7 +84,7 @@ class Estimator(Algorithm):
         d = diagnose(signals, self.nominal, control_period=self.period, model=p['model'],
                      faults=self.faults, window=(t0 - t_first, t - t_first),
                      start=max(0.0, t0 - p['warmup'] - t_first),
-                     model_form=bool(p['model_form']))
+                     model_form=bool(p['model_form']), from_rest=t_first <= 0.0)
         # drop what the next estimate will not need: memory and cost stay bounded
         keep_from = t + self.every_ticks * self.period - window - p['warmup'] - 1e-9
         drop = int(np.searchsorted(signals['t'] + t_first, keep_from))

@@ -36,7 +36,7 @@ class Problem:
 
     def __init__(self, signals: Mapping[str, np.ndarray], design: EhaParams, model: str,
                  control_period: float, window: tuple[float, float] | None,
-                 start: float | None = None):
+                 start: float | None = None, from_rest: bool = True):
         missing = [s for s in ('t', 'com', 'fr', 'psr') + SIGNALS
                    if s not in signals or not np.all(np.isfinite(signals[s]))]
         if missing:
@@ -64,8 +64,11 @@ class Problem:
         n_start = int(round(start * 1000))
         # the model runs from `start`, time shifted to 0, from the recorded jack state there
         # (the spool and flapper from rest: they settle within milliseconds); a whole run
-        # starts at rest, where this is the rest state itself
-        self.initial = {s: float(signals[s][n_start]) for s in ('xj', 'dxj')}
+        # (``from_rest``: its first row is its start) starts at rest -- not at its first
+        # recorded sample, which is the rest state plus the sensors' noise: started there, the
+        # model made a transient the actuator never had
+        self.initial = ({} if n_start == 0 and from_rest else
+                        {s: float(signals[s][n_start]) for s in ('xj', 'dxj')})
         # inputs in force from each 1 ms row on (piecewise constant, as the twin holds them)
         profiles = {s: Profile('steps', tuple(zip(((ms[n_start:n_end + 1] - n_start) / 1000
                                                    ).tolist(),

@@ -83,6 +83,9 @@ class Diagnosis:
     fit_rms: float = math.nan
     p_value: float | None = None
     fit_limit: float | None = None               # the RMS beyond which it is unexplained
+    #: the simplified model's own misfit on this flight: the RMS of its nominal run against
+    #: HD's nominal run on the recorded inputs (None: not computed)
+    flight_model_form_rms: float | None = None
     #: the verdict interval's confidence and what it counts
     confidence: float = 0.95
     interval_counts: str = 'measurement noise'
@@ -120,7 +123,8 @@ class Diagnosis:
                     severity=None if unexplained else b.severity,
                     interval=None if unexplained else _interval_json(b.interval),
                     confidence=self.confidence, interval_counts=self.interval_counts,
-                    fit=dict(rms=self.fit_rms, p_value=self.p_value, limit=self.fit_limit),
+                    fit=dict(rms=self.fit_rms, p_value=self.p_value, limit=self.fit_limit,
+                             flight_model_form_rms=self.flight_model_form_rms),
                     identifiable=self.identifiable, bounds=[b for b in self.bounds if b],
                     also_consistent_with=self.also_consistent_with,
                     onset=None if unexplained else self.onset,

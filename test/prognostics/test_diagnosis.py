@@ -153,6 +153,35 @@ def test_a_healthy_hd_unit_is_called_healthy():
     assert len(d.candidates) == len(DIAGNOSABLE) + 1
 
 
+@pytest.mark.slow
+def test_a_flight_the_model_follows_poorly_raises_its_own_limit_not_an_alarm():
+    """A 2-30 Hz chirp: SQ's nominal run is ~5 residual scales from HD's (0.8-1 on the
+    calibration flights), so a healthy HD unit fitted there misses the calibrated limit and
+    was called unexplained with healthy the best hypothesis. The limit is now also 1.5 x the
+    model's own misfit on the flight -- computed here independently, from the two nominal
+    runs -- and the verdict is healthy, with a warning that the flight is beyond the
+    calibration; on the paper flight the calibrated limit stands, the warning absent."""
+    from servovalve_twin.prognostics.diagnosis import UNEXPLAINED_FACTOR
+    from servovalve_twin.prognostics.fitting import RESIDUAL_SCALE
+    from servovalve_twin.prognostics.thresholds import chirp
+    flight = chirp(2.0, 30.0, 0.005, 2.0, 6000.0)
+    sig, _, _ = calibration.unit_signals(None, 0.0, flight, 11, spread=1.5)
+    hd, sq = (simulate(m, flight, ecu_period=1e-3) for m in ('HD', 'SQ'))
+    r = np.concatenate([(sq[k] - hd[k]) / RESIDUAL_SCALE[k] for k in ('xj', 'dxj', 'p12')])
+    own = float(np.sqrt(np.mean(r * r)))
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'))
+    assert d.flight_model_form_rms == pytest.approx(own, rel=1e-9) and own > 4
+    assert d.fit_limit == pytest.approx(UNEXPLAINED_FACTOR * own)
+    assert d.fit_rms > UNEXPLAINED_FACTOR * float(np.quantile(d.calibration['rms'], 0.98))
+    assert d.verdict != UNEXPLAINED and d.best.fault == 'healthy'
+    assert any('beyond the calibration flights' in w for w in d.warnings)
+    paper, _, _ = calibration.unit_signals(None, 0.0, 'paper', 11, spread=1.5)
+    p = diagnose(paper, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'))
+    assert p.fit_limit == pytest.approx(UNEXPLAINED_FACTOR * float(np.quantile(
+        p.calibration['rms'], 0.98))) and p.flight_model_form_rms < 1.5
+    assert not any('beyond the calibration flights' in w for w in p.warnings)
+
+
 def test_two_faults_at_once_are_recovered_as_a_pair():
     """--pairs. Plant and model the same (SQ), leakage 10 x and a null bias of -3 mA at once:
     the pair must win over every single fault (each of which fits only part of it) and both

@@ -31,3 +31,21 @@ def test_a_fit_on_a_flat_stretch_finds_the_valley_between_the_start_grid_points(
     assert rss <= 1.01 * min(profile)
     assert rss < 0.8 * min(on_grid)
     assert 4.0 < x[0] < 5.5 < truth
+
+
+def test_a_whole_run_is_modelled_from_rest_not_from_its_first_noisy_sample():
+    """A run diagnosed from t = 0 starts at rest: its first recorded XJ and DXJ are the rest
+    state plus the sensors' noise, and a model started there made a transient the actuator
+    never had (on a flight that excites nothing, a healthy unit was called a 100 x leak). A
+    fit from a later instant, or of rows that begin mid-run, starts at the recorded state."""
+    sig, _, _ = calibration.unit_signals(None, 0.0, 'defaults', 4242, spread=1.5)
+    assert sig['xj'][0] != 0.0 and sig['dxj'][0] != 0.0          # noise at the first row
+    problem = Problem(sig, DEFAULTS, 'SQ', 1e-3, None)
+    run = problem.run(problem.params((), [], {}))
+    for s in ('xj', 'dxj', 'p12'):
+        assert np.all(run[s] == 0.0), s                 # at rest, as the actuator stayed
+    later = Problem(sig, DEFAULTS, 'SQ', 1e-3, (0.5, 1.0), start=0.4)
+    assert later.initial == {'xj': float(sig['xj'][400]), 'dxj': float(sig['dxj'][400])}
+    # rows that begin mid-run (the live estimator's kept ones, their time shifted to 0)
+    mid = Problem(sig, DEFAULTS, 'SQ', 1e-3, None, from_rest=False)
+    assert mid.initial == {'xj': float(sig['xj'][0]), 'dxj': float(sig['dxj'][0])}
