@@ -30,10 +30,15 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 PREFIX = '_aot_loops_'
 
 
+def _stamped() -> str:
+    """The start of the names of the modules of the physics as they are now (any processor)."""
+    return PREFIX + physics_stamp().hex()[:16]
+
+
 def module_name() -> str:
     """The module's name for the physics as they are now, on this processor."""
     tag = cpu_tag()
-    return PREFIX + physics_stamp().hex()[:16] + (f'_{tag}' if tag else '')
+    return _stamped() + (f'_{tag}' if tag else '')
 
 
 @functools.lru_cache(maxsize=None)
@@ -146,9 +151,8 @@ def build(dest: Path = PACKAGE_DIR, model_ids=None) -> Path:
                     jit[kind](mid, sensed).py_func)
     cc.compile()
     built = next(dest.glob(module_name() + '.*'))
-    stamp = PREFIX + physics_stamp().hex()[:16]
     for old in dest.glob(PREFIX + '*'):
-        if not old.name.startswith(stamp):      # other processors' modules of it stay
+        if not old.name.startswith(_stamped()):  # other processors' modules of it stay
             old.unlink()
     _module.cache_clear()
     return built

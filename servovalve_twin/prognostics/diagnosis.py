@@ -315,8 +315,8 @@ def _second_fault(problem: Problem, best: Candidate, singles: Mapping[str, np.nd
     return found
 
 
-def _apply_model_form(d: Diagnosis, free: Sequence[str], scenario: str | None = None,
-                      problem: Problem | None = None) -> None:
+def _apply_model_form(d: Diagnosis, free: Sequence[str], scenario: str | None,
+                      problem: Problem) -> None:
     """The calibration's bias correction and model-form spread on the verdict, and the
     goodness-of-fit test (see :mod:`.calibration`).
 
@@ -337,8 +337,7 @@ def _apply_model_form(d: Diagnosis, free: Sequence[str], scenario: str | None = 
     d.calibration_scenario = scenario if scenario in (cal.get('by_scenario') or {}) else None
     d.p_value = gof_p_value(cal, d.fit_rms)
     d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(cal['rms'], REFERENCE_QUANTILE))
-    if problem is not None:
-        d.flight_model_form_rms = flight_model_form_rms(problem)
+    d.flight_model_form_rms = flight_model_form_rms(problem)
     own = UNEXPLAINED_FACTOR * (d.flight_model_form_rms or 0.0)
     if own > d.fit_limit:
         d.fit_limit = own

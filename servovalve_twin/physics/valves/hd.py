@@ -181,11 +181,11 @@ def hd_solve(xs, qj, psr, P, vs):
         c2 = 0.0
     p1_old = p1
     p2_old = p2
-    q1 = vs[V_P1_PREV]
-    q2 = vs[V_P2_PREV]
-    if math.isfinite(q1) and math.isfinite(q2):
-        p1 = 2.0 * p1_old - q1
-        p2 = 2.0 * p2_old - q2
+    p1_prev = vs[V_P1_PREV]
+    p2_prev = vs[V_P2_PREV]
+    if math.isfinite(p1_prev) and math.isfinite(p2_prev):
+        p1 = 2.0 * p1_old - p1_prev
+        p2 = 2.0 * p2_old - p2_prev
     vs[V_FAIL] = 0.0
     ok = False
     it = 0
