@@ -35,8 +35,11 @@ TICK_DEADLINE_S = 5.0
 PACE_SLICE_S = 0.05
 #: following: how often (wall) a twin waiting for /clock checks that the owner is still there
 OWNER_CHECK_S = 2.0
-#: how long the clock owner waits at the end for its last /clock to reach the followers
+#: the clock owner at the end: after this long waiting for its last /clock to be acknowledged
+#: it says so; it gives up after CLOCK_ACK_MAX_S (a reader whose process is stopped, not gone:
+#: DDS drops a vanished one after its lease, 20 s with Fast DDS's default)
 CLOCK_ACK_S = 2.0
+CLOCK_ACK_MAX_S = 30.0
 #: /clock from its owner: the latest time is all that counts, and a follower that joins late
 #: (discovery) is handed it at once (transient local); rclpy's time sources (best effort,
 #: volatile) match it
@@ -142,10 +145,27 @@ class GraphClock:
 
     def finish(self) -> None:
         """The owner at the end: its followers' last tick waits for the last /clock, so see
-        it delivered before the publisher goes (bounded: a follower that has gone
-        acknowledges nothing)."""
-        if self.pub is not None and self.wanted:
-            self.pub.wait_for_all_acked(Duration(seconds=CLOCK_ACK_S))
+        it acknowledged by every reader before the publisher goes. A follower that lags (a
+        busy machine) may take seconds; a fixed wait let the owner leave first and the
+        follower stop short of its end. Bounded: a reader that leaves the graph no longer
+        counts, and after :data:`CLOCK_ACK_MAX_S` the owner warns and goes; after a stop
+        request, one :data:`CLOCK_ACK_S`."""
+        if self.pub is None or not self.wanted:
+            return
+        start = time.perf_counter()
+        said = False
+        while not self.pub.wait_for_all_acked(Duration(seconds=PACE_SLICE_S)):
+            waited = time.perf_counter() - start
+            if waited >= (CLOCK_ACK_S if self.stopped() else CLOCK_ACK_MAX_S):
+                self.node.get_logger().warning(
+                    f'the last /clock ({self.published_ns * 1e-9:.3f} s) was not '
+                    f'acknowledged by every reader within {waited:.0f} s: leaving anyway')
+                return
+            if not said and waited >= CLOCK_ACK_S:
+                said = True
+                self.node.get_logger().info(
+                    f'waiting for the last /clock ({self.published_ns * 1e-9:.3f} s) to '
+                    f'reach every reader ({self.pub.get_subscription_count()} subscriptions)')
 
     # -- waiting ------------------------------------------------------------------------------
     def wait_for_followers(self) -> None:

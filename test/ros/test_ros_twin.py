@@ -3,6 +3,8 @@ determinism, equality with simulate, the mid-run model switch."""
 
 import math
 import os
+import signal
+import subprocess
 import time
 
 import numpy as np
@@ -384,8 +386,38 @@ def _spin_while(node_or_nodes, procs, timeout_s=120.0):
         ex.shutdown()
     for p in procs:
         if p.poll() is None:
+            # SIGABRT: the process's faulthandler (the EventsExecutor enables it) prints
+            # where every thread was, so that a hang seen once says where it was
+            p.send_signal(signal.SIGABRT)
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
             p.kill()
     return [p.communicate() for p in procs]
+
+
+def _namespaced_twin(tmp_path, ns, raw, *extra):
+    """``servovalve-twin run`` of C2 on ``raw`` in namespace ``ns``, its bag in tmp_path/ns.
+
+    The twins talk over UDP only: twice in a whole-suite run (never alone) the owner never
+    discovered the others, after many processes of earlier tests had been killed -- their
+    shared-memory ports outlive them and, we believe, push new participants out of the
+    participant ids that localhost discovery probes; UDP ports die with their process."""
+    from conftest import console_script
+    return subprocess.Popen([console_script('servovalve-twin'), 'run', '--valve-model', 'C2',
+                             '--namespace', ns, '--scenario', _scenario_file(tmp_path, ns, raw),
+                             '--bag', str(tmp_path / ns), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS='UDPv4'))
+
+
+def _wait_until_following(node, ns, timeout_s=60.0):
+    """Until ``node`` sees the twin of namespace ``ns`` subscribed to /clock (bounded)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not any(
+            i.node_namespace == ns for i in node.get_subscriptions_info_by_topic('/clock')):
+        time.sleep(0.05)
 
 
 def _scenario_file(tmp_path, name, raw):
@@ -401,7 +433,6 @@ def test_a_sim_time_node_beside_a_paced_twin_sees_every_timer_period(ros_context
     """``run --real-time-factor 1``: an ordinary rclpy node on ``use_sim_time`` with a 100 Hz
     timer, in another process, fires once per 10 ms of simulated time. Unpaced, the twin
     outruns it (its /clock jumps and the timer skips periods)."""
-    import subprocess
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
     from conftest import console_script
@@ -440,12 +471,10 @@ def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
     are there), /right follows it with a fault of its own. A watcher sees both state streams and one /clock publisher, never going back; each
     bag is its own actuator's run bit for bit (the follower's lockstep does not depend on the
     owner's pace), the fault in /right's only."""
-    import subprocess
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Float64
     from servovalve_twin.bag.reader import read_bag
-    from conftest import console_script
     healthy = {**SHORT, 'duration': 1.0}
     faulty = {**healthy, 'faults': [{'at': 0.1, 'fault': 'dynamic_friction', 'severity': 15.0}]}
     # the watcher shows itself as a follower (a twin_clock node of its own namespace on
@@ -460,27 +489,10 @@ def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
     for ns in xj:
         watcher.create_subscription(Float64, f'/{ns}/xj',
                                     lambda m, ns=ns: xj.__setitem__(ns, xj[ns] + 1), 10)
-    cli = console_script('servovalve-twin')
-
-    # the twins talk over UDP only: twice in a whole-suite run (never alone) the owner never
-    # discovered the others, after many processes of earlier tests had been killed -- their
-    # shared-memory ports outlive them and, we believe, push new participants out of the
-    # participant ids that localhost discovery probes; UDP ports die with their process
-    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS='UDPv4')
-
-    def twin(ns, raw, *extra):
-        return subprocess.Popen([cli, 'run', '--valve-model', 'C2', '--namespace', ns,
-                                 '--scenario', _scenario_file(tmp_path, ns, raw),
-                                 '--bag', str(tmp_path / ns), *extra],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env=env)
-    right = twin('right', faulty, '--clock', 'follow')
-    deadline = time.monotonic() + 60            # the watcher and /right know each other
-    while time.monotonic() < deadline and not any(
-            i.node_namespace == '/right' for i in watcher.get_subscriptions_info_by_topic(
-                '/clock')):
-        time.sleep(0.05)
-    left = twin('left', healthy, '--real-time-factor', '2', '--followers', '2')
+    right = _namespaced_twin(tmp_path, 'right', faulty, '--clock', 'follow')
+    _wait_until_following(watcher, '/right')
+    left = _namespaced_twin(tmp_path, 'left', healthy, '--real-time-factor', '2',
+                            '--followers', '2')
     outs = _spin_while(watcher, [left, right])
     watcher.destroy_node()
     for p, (out, err) in zip((left, right), outs):
@@ -498,3 +510,62 @@ def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
         ref = simulate('C2', raw, ecu_period=1e-3)
         for c in ('xj', 'p12', 'cor'):
             np.testing.assert_array_equal(run.signals[c], ref[c])
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_the_clock_owner_waits_for_a_lagging_follower(ros_context, tmp_path):
+    """The follower is stopped (SIGSTOP: its DDS threads too, so it acknowledges nothing)
+    as soon as /clock runs, while the owner still has most of its run ahead. The owner, done,
+    says it waits for its last /clock to reach every reader and is still there seconds later
+    (a fixed 2 s wait let it leave, and the follower then stopped short of its end); resumed,
+    the follower runs its whole scenario, bit for bit."""
+    import threading
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+    from servovalve_twin.bag.reader import read_bag
+    from servovalve_twin.twin.graph import CLOCK_ACK_S
+    raw = {**SHORT, 'duration': 1.0}
+    # a follower to the owner, as in the test above, so that the owner has discovered it
+    watcher = Node('twin_clock', namespace='/watcher', context=ros_context)
+    clocks = []
+    watcher.create_subscription(Clock, '/clock', lambda m: clocks.append(m), 10)
+    follower = _namespaced_twin(tmp_path, 'right', raw, '--clock', 'follow')
+    _wait_until_following(watcher, '/right')
+    owner = _namespaced_twin(tmp_path, 'left', raw, '--real-time-factor', '0.5',
+                             '--followers', '2')
+    said = threading.Event()
+    owner_err = []
+
+    def read_owner():
+        for line in owner.stderr:
+            owner_err.append(line)
+            if 'waiting for the last /clock' in line:
+                said.set()
+    reader = threading.Thread(target=read_owner, daemon=True)
+    reader.start()
+    import rclpy.executors
+    ex = rclpy.executors.SingleThreadedExecutor(context=ros_context)
+    ex.add_node(watcher)
+    try:
+        deadline = time.monotonic() + 60
+        while not clocks and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        ex.remove_node(watcher)
+        ex.shutdown()
+        assert clocks, ''.join(owner_err)
+        follower.send_signal(signal.SIGSTOP)
+        assert said.wait(timeout=60), ''.join(owner_err)
+        time.sleep(CLOCK_ACK_S)
+        assert owner.poll() is None, ''.join(owner_err)
+    finally:
+        follower.send_signal(signal.SIGCONT)
+    outs = _spin_while(watcher, [owner, follower])
+    watcher.destroy_node()
+    reader.join(timeout=10)
+    print(''.join(owner_err)[-1500:], outs[1][1][-1500:])
+    assert owner.returncode == 0 and follower.returncode == 0
+    assert 'left at' not in outs[1][1]          # the follower never saw its owner go
+    run = read_bag(tmp_path / 'right')
+    ref = simulate('C2', raw, ecu_period=1e-3)
+    np.testing.assert_array_equal(run.signals['xj'], ref['xj'])
