@@ -8,13 +8,15 @@ Histories of 12-20 flights of a leakage multiplier (threshold 10, the alarm valu
 - ``linear``: s = 1 + 9 n/EOL; ``exponential``: the documented offset exponential
   s = 1 + a e^(b n) reaching 10 at EOL (b drawn in [0.1, 0.25]);
 - each flight's diagnosed severity carries relative noise (``--noise``, default 8 %) that its
-  stated interval understates (2 %), and a unit bias of sd 3 % stated as the diagnosis'
-  ``model_sigma`` -- what `diagnose` hands to `prognose`;
+  stated interval understates (``--stated-noise``, default 2 %; give it the true noise to see
+  what knowing the noise's size and shape would gain), and a unit bias of sd 3 % stated as the
+  diagnosis' ``model_sigma`` -- what `diagnose` hands to `prognose`;
 - evaluation at every flight from half of life on;
 - ``trend-free``: a healthy multiplier read with 5 % noise (no finite RUL is the right answer);
 - ``step``: eight flights near 1.2, then a step to 11 (past the threshold: RUL 0 is right).
 
     .venv/bin/python bench/bench_prognosis.py [--units 40] [--seed 101] [--noise 0.08]
+        [--stated-noise 0.02]
 """
 
 import argparse
@@ -34,7 +36,7 @@ def history(cycles, severities, half_widths, model_sigma=0.0):
                  model_sigma=model_sigma) for n, s, h in zip(cycles, severities, half_widths)]
 
 
-def trending(kind: str, units: int, seed: int, noise: float) -> dict:
+def trending(kind: str, units: int, seed: int, noise: float, stated: float = 0.02) -> dict:
     rng = np.random.default_rng(seed)
     hits = total = al = 0
     for _ in range(units):
@@ -53,7 +55,7 @@ def trending(kind: str, units: int, seed: int, noise: float) -> dict:
         d = truth(n) - 1.0
         s = 1.0 + d * (1 + bias + rng.normal(0.0, noise, n.size))
         for k in range(max(3, int(math.ceil(eol / 2))), n.size):
-            p = prognose(history(n[:k + 1], s[:k + 1], 0.02 * d[:k + 1] + 1e-3, 0.03),
+            p = prognose(history(n[:k + 1], s[:k + 1], 1.96 * stated * d[:k + 1] + 1e-3, 0.03),
                          'leakage_growth', 10.0, draws=1000, seed=k)
             true_rul = eol - n[k]
             total += 1
@@ -86,15 +88,19 @@ def main() -> None:
     ap.add_argument('--units', type=int, default=40)
     ap.add_argument('--seed', type=int, default=101)
     ap.add_argument('--noise', type=float, default=0.08)
+    ap.add_argument('--stated-noise', type=float, default=0.02 / 1.96,
+                    help='the relative sd each flight\'s interval states (default: a 95 %% '
+                         'half-width of 2 %% of the departure from healthy)')
     args = ap.parse_args()
     t0 = time.perf_counter()
     print(f'hidden histories: {args.units} units per kind, 12-20 flights, noise '
-          f'{args.noise:.0%} (intervals state 2 %), unit bias sd 3 % (stated); seed {args.seed}')
+          f'{args.noise:.0%} (intervals state sd {args.stated_noise:.1%}), unit bias sd 3 % '
+          f'(stated); seed {args.seed}')
     print('\n| history | evaluation points (from half of life) | 90 % RUL interval holds the '
           f'truth | alpha-lambda met (alpha {ALPHA:g}) |')
     print('|---|---|---|---|')
     for i, kind in enumerate(('linear', 'exponential')):
-        r = trending(kind, args.units, args.seed + i, args.noise)
+        r = trending(kind, args.units, args.seed + i, args.noise, args.stated_noise)
         print(f'| {kind} | {r["points"]} | {r["covered"]} ({r["covered"] / r["points"]:.1%}) '
               f'| {r["alpha_lambda"]} ({r["alpha_lambda"] / r["points"]:.1%}) |')
     tf = trend_free(5 * args.units, args.seed + 7)
