@@ -148,15 +148,18 @@ class GraphClock:
         it acknowledged by every reader before the publisher goes. A follower that lags (a
         busy machine) may take seconds; a fixed wait let the owner leave first and the
         follower stop short of its end. Bounded: a reader that leaves the graph no longer
-        counts, and after :data:`CLOCK_ACK_MAX_S` the owner warns and goes; after a stop
-        request, one :data:`CLOCK_ACK_S`."""
+        counts, after :data:`CLOCK_ACK_MAX_S` the owner warns and goes, and a stop request
+        (SIGINT) ends the wait within one slice -- the followers then see the owner go and
+        stop there too, as the user asked."""
         if self.pub is None or not self.wanted:
             return
         start = time.perf_counter()
         said = False
         while not self.pub.wait_for_all_acked(Duration(seconds=PACE_SLICE_S)):
+            if self.stopped():
+                return
             waited = time.perf_counter() - start
-            if waited >= (CLOCK_ACK_S if self.stopped() else CLOCK_ACK_MAX_S):
+            if waited >= CLOCK_ACK_MAX_S:
                 self.node.get_logger().warning(
                     f'the last /clock ({self.published_ns * 1e-9:.3f} s) was not '
                     f'acknowledged by every reader within {waited:.0f} s: leaving anyway')
