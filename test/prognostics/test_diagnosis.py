@@ -153,6 +153,22 @@ def test_a_healthy_hd_unit_is_called_healthy():
     assert len(d.candidates) == len(DIAGNOSABLE) + 1
 
 
+def test_the_verdict_floor_applies_to_the_corrected_severity():
+    """SQ reads a leak on the paper flight low: HD's 1.7 x fits at 1.44 x, below the verdict
+    floor (20 % of the way to the alarm value: 10**0.2 = 1.585 x, the detection limit that
+    ``diagnose --limits paper`` states). The floor applies to the severity the answer states,
+    after the paper's model-form correction: the leak is named, its interval holding the
+    truth. Applied to the raw fit, a leak above the stated limit was called healthy."""
+    floor = 10 ** 0.2
+    run = simulate('HD', _faulty('leakage_growth', 1.7), ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ',
+                 faults=['leakage_growth'], scenario='paper')
+    assert d.best.fault == 'leakage_growth'
+    assert d.best.raw[0] < floor <= d.best.severity
+    lo, hi = d.best.interval
+    assert lo <= 1.7 <= hi
+
+
 @pytest.mark.slow
 def test_a_flight_the_model_follows_poorly_raises_its_own_limit_not_an_alarm():
     """A 2-30 Hz chirp: SQ's nominal run is ~5 residual scales from HD's (0.8-1 on the
