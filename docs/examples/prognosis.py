@@ -133,9 +133,10 @@ def plot(units, rows, path) -> None:
                           [h['interval'][1] - h['severity'] for h in hist]],
                     fmt='.', color=f'C{i}', ms=3, lw=0.5)
     ax.axhline(ALARM, color='k', ls='--', lw=0.8)
-    ax.set_xlabel('flight')
-    ax.set_ylabel('leakage severity [x CLk]')
-    ax.set_title('truth (lines) and diagnosed with SQ (dots, 95 %)', fontsize=9)
+    ax.set_xlabel('flight', fontsize=9)
+    ax.set_ylabel('leakage severity [x CLk]', fontsize=9)
+    ax.set_title('truth (lines) and diagnosed with SQ (dots: the noise-only 95 % interval\n'
+                 'handed to prognose, which adds the model-form spread)', fontsize=9)
     ax.grid(True, lw=0.3)
     for r in rows:
         x = r['lam'] + (r['unit'] - len(units) / 2) * 0.01
@@ -144,8 +145,8 @@ def plot(units, rows, path) -> None:
                      color=f'C{r["unit"]}', ms=4, lw=0.8)
     ax2.axhspan(1 - ALPHA, 1 + ALPHA, color='0.9', label='+-30 % of the true RUL')
     ax2.axhline(1.0, color='k', lw=0.8)
-    ax2.set_xlabel('fraction of life at the prediction (lambda)')
-    ax2.set_ylabel('predicted / true RUL')
+    ax2.set_xlabel('fraction of life at the prediction (lambda)', fontsize=9)
+    ax2.set_ylabel('predicted / true RUL', fontsize=9)
     ax2.set_title('RUL predicted by prognose (median, 90 %)', fontsize=9)
     ax2.set_ylim(0, 3)
     ax2.legend(fontsize=8)
