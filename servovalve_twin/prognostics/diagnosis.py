@@ -173,7 +173,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     else:
         bounds = []
     from .onset import fit_onset
-    onset_fit = fit_onset(problem, candidates, n, n_eff) if onset else None
+    onset_fit = fit_onset(problem, candidates, n, n_eff,
+                          lambda f, s: _unbiased(cal, f, s, ONSET_ENTRY)) if onset else None
     # an onset refitted the verdict at it (not when the fit from the start stands and only
     # when the fault began is in doubt)
     refitted = onset_fit is not None and not onset_fit.get('from_start')

@@ -9,7 +9,7 @@ turn (:func:`fit_onset`)."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -140,11 +140,13 @@ def _from_start(problem: Problem, ref: Candidate, profiles: list[OnsetProfile], 
                 identifiable=False, from_start=True)
 
 
-def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: float
-               ) -> dict[str, Any] | None:
+def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: float,
+              unbiased: Callable[[str, float], float] | None = None
+              ) -> dict[str, Any] | None:
     """A change point: each single-fault hypothesis starting at an instant tau of the window
     instead of from the start, its severity refitted at each tau of a coarse grid; the best
-    fault whose severity is of a size worth reporting (:func:`_sized`) has its tau refined by
+    fault whose severity is of a size worth reporting (:func:`.diagnosis.sized`, read after
+    ``unbiased``, the model-form correction of an onset's answer) has its tau refined by
     golden section. Reported when it beats the best candidate from the
     start by PAIR_EVIDENCE in BIC (tau, and the severity too against healthy, are parameters
     more); the taus whose RSS stays within the 95 % likelihood-ratio limit are its interval,
@@ -180,7 +182,8 @@ def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: floa
     # a change point of a fault too small to report is the mismatch's, as from the start (a
     # static friction below its limit read as a 1.2-1.5 x dynamic friction from a wrong
     # instant: measured)
-    reportable = [pr for pr in profiles if sized(pr.fault, pr.best()[1])]
+    reportable = [pr for pr in profiles if sized(pr.fault, pr.best()[1] if unbiased is None
+                                                 else unbiased(pr.fault, pr.best()[1]))]
     if not reportable:
         return None
     prof = min(reportable, key=lambda pr: pr.best()[2])

@@ -557,6 +557,22 @@ def test_an_onset_of_a_fault_too_small_to_report_is_no_verdict():
 
 
 @pytest.mark.slow
+def test_an_onset_is_sized_for_the_floor_after_its_correction():
+    """A leak of 1.8 x from 0.3 s on the paper flight: fitted from its onset at 1.56 x, below
+    the verdict floor (1.585 x), it is 1.62 x after the onset answers' model-form correction --
+    above the floor and the limit ``--limits paper --onset-at 0.3`` states. Its onset must be
+    located (it was not while the onset's floor read the raw fit)."""
+    run = simulate('HD', dict(PAPER, faults=[{'at': 0.3, 'fault': 'leakage_growth',
+                                               'severity': 1.8}]), ecu_period=1e-3)
+    d = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ',
+                 faults=['leakage_growth'], onset=True, scenario='paper')
+    assert d.best.fault == 'leakage_growth' and d.onset is not None
+    assert abs(d.onset['t'] - 0.3) <= 0.05 and d.onset['identifiable']
+    lo, hi = d.best.interval
+    assert lo <= 1.8 <= hi
+
+
+@pytest.mark.slow
 def test_no_onset_is_reported_for_a_fault_present_from_the_start():
     sig, truth, _ = calibration.unit_signals('leakage_growth', 1.0, 'paper', 32, noise_gain=1.0)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('M', 'CJ'),
