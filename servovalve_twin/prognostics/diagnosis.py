@@ -146,11 +146,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     # the model-form-corrected one, the severity the answer would state and the detection
     # limits are in: SQ reads a leak on the paper flight ~10 % low, and a 1.7 x leak (limit
     # 1.585 x), fitted at 1.45-1.54, was called healthy (measured)
-    if model_form:
-        from .calibration import calibration_for
-        cal = calibration_for(model, free)
-    else:
-        cal = None
+    from .calibration import calibration_for
+    cal = calibration_for(model, free) if model_form else None
     by_name = {c.fault: c for c in candidates}
     best = next(c for c in candidates if c.fault == HEALTHY or (
         _detectable(c, cal=cal, scenario=scenario)
@@ -205,7 +202,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     if model_form:
         # an answer refitted at an onset has an error of its own (the fault seen over part of
         # the window, its instant estimated): the calibration's onset units set its spread
-        _apply_model_form(d, free, ONSET_ENTRY if refitted else scenario, problem)
+        _apply_model_form(d, cal, free, ONSET_ENTRY if refitted else scenario, problem)
     return d
 
 
@@ -325,10 +322,11 @@ def _second_fault(problem: Problem, best: Candidate, singles: Mapping[str, np.nd
     return found
 
 
-def _apply_model_form(d: Diagnosis, free: Sequence[str], scenario: str | None,
-                      problem: Problem) -> None:
-    """The calibration's bias correction and model-form spread on the verdict, and the
-    goodness-of-fit test (see :mod:`.calibration`).
+def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequence[str],
+                      scenario: str | None, problem: Problem) -> None:
+    """The calibration ``cal`` (of the model with ``free`` nuisance; None: none packaged):
+    its bias correction and model-form spread on the verdict, and the goodness-of-fit test
+    (see :mod:`.calibration`).
 
     The test's limit is the larger of two: the calibration set's (right hypotheses on the
     calibration flights) and :data:`UNEXPLAINED_FACTOR` times the model's own misfit on this
@@ -336,8 +334,7 @@ def _apply_model_form(d: Diagnosis, free: Sequence[str], scenario: str | None,
     where SQ's nominal run is 5.4 residual scales from HD's against 0.8-1 on the calibration
     flights -- made every healthy unit 'unexplained' though no fault improved on healthy: the
     misfit was the model's, which this flight shows as it shows any fault's."""
-    from .calibration import calibration_for, gof_p_value
-    cal = calibration_for(d.model, free)
+    from .calibration import gof_p_value
     if cal is None:
         d.warnings.append(f'no model-form calibration for {d.model} with free '
                           f'{",".join(sorted(free)) or "none"}: the interval counts the '
