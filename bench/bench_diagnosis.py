@@ -15,6 +15,7 @@ what counts is how many are given a confident wrong name (a fault named that is 
 truth; ``unexplained`` and ``healthy`` are not names).
 
     .venv/bin/python bench/bench_diagnosis.py [--units 4] [--seed 1] [--spread 1.5]
+        [--healthy-flights N | --near-limits N]
 """
 
 import argparse
@@ -124,6 +125,75 @@ def healthy_flights(units: int, seed: int, spread: float, free) -> None:
           f'median {statistics.median(r["seconds"] for r in res):.2f} s')
 
 
+#: where ``--near-limits`` puts its units: these multiples of the stated limit's distance from
+#: healthy (in the fault's coordinate: ln(s/h) for a multiplier)
+NEAR = (1.1, 1.25)
+
+
+def near_limits(units: int, seed: int, spread: float, free, scens) -> None:
+    """``--near-limits``: units whose fault lies just beyond the detection limit stated for
+    their flight (:data:`NEAR` of its distance from healthy): how often is a fault the limit
+    says the flight shows named?"""
+    from bench_physics import machine
+    from servovalve_twin.physics.faults import FAULTS
+    from servovalve_twin.prognostics.calibration import to_g
+    from servovalve_twin.prognostics.excitation import detection_limits
+    base = seed * 4_444_441 + 23                 # never a calibration seed (those are 7e6+)
+    jobs, k = [], 0
+    limits = {scen: {x.fault: x for x in detection_limits(SCENARIOS.get(scen, scen))}
+              for scen in scens}
+
+    def limit_of(job):
+        return limits[job[3]][job[1]]
+
+    for scen in scens:
+        for lim in limits[scen].values():
+            if lim.limit is None:
+                continue
+            for m in NEAR:
+                # the fraction of the way to the alarm value at m x the limit's distance
+                spec = FAULTS[lim.fault]
+                q = m * to_g(lim.fault, lim.limit) / to_g(lim.fault, spec.demo)
+                if not spec.lo <= severity_at(lim.fault, q) <= spec.hi:
+                    continue                     # beyond the catalog's range
+                for _ in range(units):
+                    jobs.append(('inside', lim.fault, q, scen, base + k, spread, free, m,
+                                 lim.limit))
+                    k += 1
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        res = list(pool.map(one, [j[:7] for j in jobs], chunksize=2))
+    print(f'machine: {machine()}; {len(jobs)} HD units, each fault at {NEAR} x the distance '
+          f'of its stated limit from healthy ({units} each), nuisance x{spread:g}, noise '
+          f'0.5-2x; SQ, free {",".join(free) or "none"}; {time.perf_counter() - t0:.0f} s')
+    print('\n| flight | fault | stated limit | ' + ' | '.join(
+        f'named at {m:g} x' for m in NEAR) + ' |')
+    print('|---|---|---|' + '---|' * len(NEAR))
+    tot = {m: [0, 0] for m in NEAR}
+    for scen in scens:
+        for fault in DIAGNOSABLE:
+            rows = [(j, r) for j, r in zip(jobs, res) if j[3] == scen and j[1] == fault]
+            if not rows:
+                continue
+            cells = []
+            for m in NEAR:
+                # the truth read against the design: a unit whose own friction or gain the
+                # nuisance drew low may lie below the limit whatever was asked of it
+                at = [r for j, r in rows if j[7] == m and limit_of(j).detects(r['truth'])]
+                hit = sum(r['named'] == fault for r in at)
+                tot[m][0] += hit
+                tot[m][1] += len(at)
+                cells.append(f'{hit}/{len(at)}' if at else '-')
+            print(f'| {scen} | {fault} | {rows[0][0][8]:.4g} | ' + ' | '.join(cells) + ' |')
+    below = sum(not limit_of(j).detects(r['truth']) for j, r in zip(jobs, res))
+    print('\n' + '; '.join(f'named at {m:g} x the limit: {h}/{n}' for m, (h, n) in tot.items())
+          + f' (units beyond their limit in truth; {below} others below it, left out)')
+    for j, r in zip(jobs, res):
+        if r['named'] != j[1] and limit_of(j).detects(r['truth']):
+            print(f'not named: {j[1]} {r["truth"]:.4g} ({j[7]:g} x the limit {j[8]:.4g}) on '
+                  f'{j[3]}: {r["named"]} {r["severity"] if r["severity"] is not None else ""}')
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--units', type=int, default=4, help='units per fault, level, scenario')
@@ -134,6 +204,9 @@ def main() -> None:
     ap.add_argument('--healthy-flights', type=int, default=0, metavar='N',
                     help='instead: N healthy units on every built-in scenario and on unseen '
                          'chirps and random steps, the false alarms of diagnose')
+    ap.add_argument('--near-limits', type=int, default=0, metavar='N',
+                    help='instead: N units per fault and flight just beyond its stated '
+                         'detection limit, how often it is named')
     args = ap.parse_args()
     free = tuple(sorted(n for n in args.free.split(',') if n))
     scens = args.scenarios.split(',')
@@ -141,6 +214,9 @@ def main() -> None:
     from bench_physics import machine
     if args.healthy_flights:
         healthy_flights(args.healthy_flights, args.seed, args.spread, free)
+        return
+    if args.near_limits:
+        near_limits(args.near_limits, args.seed, args.spread, free, scens)
         return
     jobs, k = [], 0
     base = args.seed * 7_777_777 + 13           # never a calibration seed (those are 7e6+)

@@ -3,12 +3,13 @@
 :mod:`servovalve_twin.prognostics.calibration`).
 
 Every unit of the calibration set (seeded: --seed) is diagnosed with SQ against the design,
-without the model-form term, once with M and CJ free and once without; so are the onset units,
-with the onset fitted; the per-fault bias and spread and the goodness-of-fit reference are
-fitted to the results. Runs in a process pool.
+without the model-form term, once with M and CJ free and once without; so are the onset units
+(on the paper flight and the built-in test), with the onset fitted; the per-fault bias and
+spread, the onset intervals' factor and the goodness-of-fit reference are fitted to the
+results. Runs in a process pool.
 
     .venv/bin/python bench/calibrate_diagnosis.py [--units 4] [--seed 7] [--out FILE]
-        [--onset-units 12] [--refit | --onset-only]
+        [--onset-units 12] [--refit | --reuse | --onset-only]
 """
 
 import argparse
@@ -21,10 +22,11 @@ from concurrent.futures import ProcessPoolExecutor
 
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_FILE, LEVELS,
-                                                     EXTRA_UNITS, NOISE, ONSET_UNITS,
-                                                     ONSET_WINDOW, VARY, calibration_jobs,
-                                                     fit_calibration, onset_jobs, to_g,
-                                                     unit_signals)
+                                                     EXTRA_UNITS, NOISE, ONSET_SCENARIOS,
+                                                     ONSET_UNITS, ONSET_WINDOW, VARY,
+                                                     calibration_jobs, fit_calibration,
+                                                     onset_jobs, to_g, unit_signals,
+                                                     widen_needed)
 from servovalve_twin.prognostics.diagnosis import HEALTHY, diagnose
 
 FREE_SETS = (('CJ', 'M'), ())
@@ -62,8 +64,10 @@ def one_onset(job):
     for free in FREE_SETS:
         d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=free,
                      model_form=False, onset=True)
-        out[free] = dict(record(d, fault, truth), scenario='onset', onset=at, refitted=bool(
-            d.onset and not d.onset.get('from_start')))
+        refitted = bool(d.onset and not d.onset.get('from_start'))
+        out[free] = dict(record(d, fault, truth), scenario=scen, onset=at, refitted=refitted,
+                         widen=widen_needed(d.onset_profile, d.window, at) if refitted
+                         else None)
     return out
 
 
@@ -73,6 +77,10 @@ def _keyed(results):
 
 def _unkeyed(kept):
     return [{tuple(json.loads(k)): v for k, v in r.items()} for r in kept]
+
+
+def _key(job) -> str:
+    return json.dumps(list(job))
 
 
 def main() -> None:
@@ -86,31 +94,37 @@ def main() -> None:
                     help='onset units per fault (calibration.onset_jobs)')
     ap.add_argument('--refit', action='store_true',
                     help='fit the calibration again from --records, diagnosing nothing')
+    ap.add_argument('--reuse', action='store_true',
+                    help='diagnose only the units --records lacks (units added to the set)')
     ap.add_argument('--onset-only', action='store_true',
-                    help='diagnose the onset units only, the other units taken from --records')
+                    help='diagnose the onset units again, the other units taken from --records')
     args = ap.parse_args()
     jobs = calibration_jobs(args.units, args.seed)
     ojobs = onset_jobs(args.onset_units, args.seed)
     t0 = time.perf_counter()
-    kept = {}
-    if args.refit or args.onset_only:
+    kept, okept = {}, {}
+    if args.refit or args.reuse or args.onset_only:
         with open(args.records, encoding='utf-8') as fh:
-            kept = json.load(fh)
-        if kept['jobs'] != [list(j) for j in jobs]:
-            sys.exit(f'{args.records} holds another calibration set (units, seed or scenarios '
-                     'differ); run without --refit')
-        if args.refit and kept.get('onset_jobs') != [list(j) for j in ojobs]:
-            sys.exit(f'{args.records} holds other onset units; run with --onset-only')
+            rec = json.load(fh)
+        # each unit's diagnoses by its job (fault, level, scenario, seed[, onset]): a job of
+        # the set that the records lack is diagnosed, one they hold that the set lacks unused
+        kept = {_key(j): r for j, r in zip(rec['jobs'], _unkeyed(rec['results']))}
+        if not args.onset_only:
+            okept = {_key(j): r for j, r in zip(rec.get('onset_jobs', []),
+                                                _unkeyed(rec.get('onset_results', [])))}
+    todo = [j for j in jobs if _key(j) not in kept]
+    otodo = [j for j in ojobs if _key(j) not in okept]
+    if args.refit and (todo or otodo):
+        sys.exit(f'{args.records} lacks {len(todo)} units and {len(otodo)} onset units of this '
+                 'calibration set (units, seed or scenarios differ); run with --reuse')
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         unit_signals(None, 0.0, 'paper', 0)             # compile in the parent, not per worker
-        if kept:
-            # (records kept before the scenario was recorded in them: it is the job's)
-            results = [{k: dict(v, scenario=job[2]) for k, v in r.items()}
-                       for job, r in zip(jobs, _unkeyed(kept['results']))]
-        else:
-            results = list(pool.map(one, jobs, chunksize=2))
-        onsets = (_unkeyed(kept['onset_results']) if args.refit else
-                  list(pool.map(one_onset, ojobs)))
+        kept.update(zip(map(_key, todo), pool.map(one, todo, chunksize=2)))
+        okept.update(zip(map(_key, otodo), pool.map(one_onset, otodo)))
+    # (records kept before the scenario was recorded in them: it is the job's)
+    results = [{k: dict(v, scenario=job[2]) for k, v in kept[_key(job)].items()}
+               for job in jobs]
+    onsets = [okept[_key(job)] for job in ojobs]
     if not args.refit:
         os.makedirs(os.path.dirname(args.records) or '.', exist_ok=True)
         with open(args.records, 'w', encoding='utf-8') as fh:
@@ -121,6 +135,7 @@ def main() -> None:
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
                           spread=SPREAD, onset_units=args.onset_units,
                           onset_window=list(ONSET_WINDOW),
+                          onset_scenarios=list(ONSET_SCENARIOS),
                           noise=NOISE, noise_gain='log-uniform 0.5-2',
                           diagnoses=len(jobs) + len(ojobs)))
     for free in FREE_SETS:
@@ -129,8 +144,9 @@ def main() -> None:
     with open(args.out, 'w', encoding='utf-8') as fh:
         json.dump(out, fh, indent=1, sort_keys=True)
         fh.write('\n')
-    print(f'{len(jobs)} units and {len(ojobs)} onset units x {len(FREE_SETS)} diagnoses in '
-          f'{time.perf_counter() - t0:.0f} s -> {args.out}', file=sys.stderr)
+    print(f'{len(jobs)} units and {len(ojobs)} onset units ({len(todo)} and {len(otodo)} '
+          f'diagnosed now) x {len(FREE_SETS)} diagnoses in {time.perf_counter() - t0:.0f} s '
+          f'-> {args.out}', file=sys.stderr)
     for key in (k for k in out if k != 'about'):
         print(key)
         for f, c in out[key]['faults'].items():
@@ -141,6 +157,8 @@ def main() -> None:
                 shape = 'kernel      ' if c.get('points') else f'slope {c["slope"]:+.3f}'
                 print(f'  on {scen:8s} {f:24s} bias {c["bias"]:+.4f} {shape} sigma '
                       f'{c["sigma"]:.4f} k {c["k"]:.2f}')
+        print('  onset interval factors', {k: round(v, 2)
+                                            for k, v in out[key]['onset_widen'].items()})
         print('  rms quantiles', {k: round(v, 3) for k, v in out[key]['rms_quantiles'].items()})
 
 

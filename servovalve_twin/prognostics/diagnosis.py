@@ -88,7 +88,8 @@ DETECTABLE = 0.2
 #: how much lower (better) a pair's score must be than each of its two single faults' to be
 #: reported: "very strong" evidence on Kass and Raftery's BIC scale
 PAIR_EVIDENCE = 10.0
-#: the calibration entry of answers refitted at an onset (:data:`.calibration.ONSET_UNITS`)
+#: the calibration entry of answers refitted at an onset (:data:`.calibration.ONSET_UNITS`),
+#: pooled over the onset flights; ``onset:<scenario>`` is one flight's own
 ONSET_ENTRY = 'onset'
 #: severities per fault of a pair's start grid
 PAIR_GRID = 5
@@ -169,9 +170,21 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         bounds = [_one_sided(f, iv) for f, iv in zip(hyp, ivs)]
     else:
         bounds = []
+    from .calibration import onset_widen
     from .onset import fit_onset
+    # an answer refitted at an onset has an error of its own (the fault seen over part of the
+    # window, its instant estimated): the calibration's onset units on this flight (else on
+    # every onset flight) set its correction, its spread and how much wider than the noise
+    # alone the onset's interval is
+    entry = onset_entry(cal, scenario)
     onset_fit = fit_onset(problem, candidates, n, n_eff,
-                          lambda f, s: _unbiased(cal, f, s, ONSET_ENTRY)) if onset else None
+                          lambda f, s: _unbiased(cal, f, s, entry),
+                          widen=onset_widen(cal, entry)) if onset else None
+    onset_profile = onset_fit.pop('profile', None) if onset_fit else None
+    if onset_fit is not None:
+        # (the factor is set for 90 % of the calibration's onset units; without it the
+        # interval is the noise's 95 % likelihood-ratio one)
+        onset_fit['confidence'] = 0.9 if cal is not None else 0.95
     # an onset refitted the verdict at it (not when the fit from the start stands and only
     # when the fault began is in doubt)
     refitted = onset_fit is not None and not onset_fit.get('from_start')
@@ -183,7 +196,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         best.interval = boot[0] if len(boot) == 1 else boot
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
                   evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
-                  fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit)
+                  fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit,
+                  onset_profile=onset_profile)
     if second is not None:
         d.verdict = UNEXPLAINED
         d.warnings.append(f'unexplained: two faults at once ({second.fault}) fit better than '
@@ -200,9 +214,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                           + ' (the fit does not change beyond it: only a flight that excites '
                           'it more can pin it)')
     if model_form:
-        # an answer refitted at an onset has an error of its own (the fault seen over part of
-        # the window, its instant estimated): the calibration's onset units set its spread
-        _apply_model_form(d, cal, free, ONSET_ENTRY if refitted else scenario, problem)
+        _apply_model_form(d, cal, free, entry if refitted else scenario, problem)
     return d
 
 
@@ -373,7 +385,8 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
     best.interval = ivs[0] if len(ivs) == 1 else ivs
     d.confidence = 0.9
     d.interval_counts = 'measurement noise and the model-form error calibrated against HD' + (
-        ' for a fault that began mid-flight' if d.calibration_scenario == ONSET_ENTRY else
+        ' for a fault that began mid-flight' if (d.calibration_scenario or '').startswith(
+            ONSET_ENTRY) else
         f' on this flight ({d.calibration_scenario})' if d.calibration_scenario else '')
 
 
@@ -441,6 +454,13 @@ def sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:
     alarm value, in its calibration coordinate."""
     from .calibration import to_g
     return abs(to_g(fault, severity)) >= fraction * abs(to_g(fault, FAULTS[fault].demo))
+
+
+def onset_entry(cal: Mapping[str, Any] | None, scenario: str | None) -> str:
+    """The calibration entry of an answer refitted at an onset on ``scenario``: the flight's
+    own onset units' where the calibration has them, else those of every onset flight."""
+    own = f'{ONSET_ENTRY}:{scenario}'
+    return own if own in ((cal or {}).get('by_scenario') or {}) else ONSET_ENTRY
 
 
 def _unbiased(cal: Mapping[str, Any] | None, fault: str, severity: float,

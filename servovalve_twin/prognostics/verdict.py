@@ -96,6 +96,10 @@ class Diagnosis:
     #: when the verdict's fault began ({'t', 'interval'} [s]), None: from the start (or not
     #: asked)
     onset: dict[str, Any] | None = None
+    #: the onset fit's cost per tried instant (``costs``, the best ``rss``, the likelihood-
+    #: ratio ``width``): what the calibration reads the onset interval's factor from; not in
+    #: the JSON
+    onset_profile: dict[str, Any] | None = None
     #: per fault of the verdict: '' where the data pin its severity, else the one-sided bound
     #: they support ('static_friction >= 12.3': the likelihood is flat beyond)
     bounds: list[str] = dataclasses.field(default_factory=list)

@@ -205,15 +205,20 @@ def test_the_extra_units_leave_the_first_ones_and_spread_between_the_levels():
     # the first units: the levels, seeds in sequence, whatever the extra ones are
     assert [j[3] for j in jobs] == [7 * 1_000_003 + k for k in range(len(jobs))]
     assert {j[1] for j in jobs[:first] if j[0]} == set(LEVELS)
-    extra = [j[1] for j in jobs[first:] if j[0]]
-    assert all(LEVELS[0] <= q <= 1.0 for q in extra)
-    assert len(set(extra)) > len(extra) // 2
+    extra = [j for j in jobs[first:] if j[0]]
+    assert all(calibration.EXTRA_RANGE[j[2]][0] <= j[1] <= calibration.EXTRA_RANGE[j[2]][1]
+               for j in extra)
+    assert len({j[1] for j in extra}) > len(extra) // 2
+    # the paper flight's extra units reach below the verdict floor
+    assert min(j[1] for j in extra if j[2] == 'paper') < 0.2
 
 
-def test_the_onset_entry_comes_from_refitted_onset_units_and_nothing_else():
-    """Onset units whose answer was refitted at an onset (error -0.2 in g) give the entry
-    ``by_scenario['onset']``; those that kept the from-start fit (error +0.5) are left out of
-    it, and no onset unit moves the pooled or a scenario's entry."""
+def test_the_onset_entries_come_from_refitted_onset_units_and_nothing_else():
+    """Onset units whose answer was refitted at an onset give the entries ``onset:paper``
+    (error -0.2 in g) and ``onset:bit`` (+0.1) and, pooled, ``onset``; those that kept the
+    from-start fit (error +0.5) are left out, and no onset unit moves the pooled or a
+    scenario's entry. The interval factor is each entry's split-conformal rank of the named
+    units' needed factors (hand-counted: rank ceil(0.9 * 21) = 19 of 20)."""
     rng = np.random.default_rng(8)
 
     def unit(e, **kw):
@@ -222,29 +227,81 @@ def test_the_onset_entry_comes_from_refitted_onset_units_and_nothing_else():
                     estimate=truth * math.exp(e + rng.normal(0.0, 0.01)), se=0.0, rms=1.0,
                     **kw)
     rec = [unit(0.0, scenario='paper') for _ in range(50)]
-    onset = ([unit(-0.2, scenario='onset', refitted=True) for _ in range(30)]
-             + [unit(0.5, scenario='onset', refitted=False) for _ in range(30)])
+    onset = ([unit(-0.2, scenario='paper', refitted=True, widen=1.0 + k) for k in range(20)]
+             + [unit(0.1, scenario='bit', refitted=True, widen=10.0 + k) for k in range(20)]
+             + [unit(0.5, scenario='paper', refitted=False, widen=None) for _ in range(30)])
+    # a wrongly named unit's onset says nothing of the named fault's interval
+    onset.append(dict(onset[0], named='supply_loss', widen=1e6))
     cal = fit_calibration(rec, onset)
-    own = cal['by_scenario']['onset']['leakage_growth']
-    assert own['units'] == 30 and own['bias'] == pytest.approx(-0.2, abs=0.01)
-    assert own['sigma'] < 0.05
+    by = cal['by_scenario']
+    assert by['onset:paper']['leakage_growth']['units'] == 20
+    assert by['onset:paper']['leakage_growth']['bias'] == pytest.approx(-0.2, abs=0.01)
+    assert by['onset:bit']['leakage_growth']['bias'] == pytest.approx(0.1, abs=0.01)
+    assert by['onset:paper']['leakage_growth']['sigma'] < 0.05
+    # pooled: both flights' units, a spread covering both biases
+    assert by['onset']['leakage_growth']['units'] == 40
+    assert by['onset']['leakage_growth']['sigma'] > 0.1
+    assert cal['onset_widen'] == {'onset:paper': 19.0, 'onset:bit': 28.0,
+                                  'onset': sorted([1.0 + k for k in range(20)]
+                                                  + [10.0 + k for k in range(20)])[36]}
     plain = fit_calibration(rec)
     assert cal['faults'] == plain['faults']
     assert cal['by_scenario']['paper'] == plain['by_scenario']['paper']
-    assert 'onset' not in plain['by_scenario']
+    assert not any(k.startswith('onset') for k in plain['by_scenario'])
+    assert plain['onset_widen'] == {}
+
+
+def test_an_onset_flight_without_enough_units_falls_back_to_the_onset_entry():
+    """An onset flight's own entry, on fewer than OWN_UNITS units, takes the larger spread of
+    its own and the pooled onset entry's -- not the from-start pooled one's -- and a flight
+    without onset units takes the pooled onset entry and its factor."""
+    from servovalve_twin.prognostics.diagnosis import onset_entry
+    line = dict(bias=0.0, slope=0.0, g0=0.0, k=1.0)
+    cal = dict(faults={'leakage_growth': dict(line, sigma=0.5, units=99)},
+               by_scenario={'onset': {'leakage_growth': dict(line, sigma=0.2, units=40)},
+                            'onset:bit': {'leakage_growth': dict(line, sigma=0.1,
+                                                                 units=12)}},
+               onset_widen={'onset': 3.0, 'onset:bit': 2.0})
+    assert calibration.fault_calibration(cal, 'leakage_growth', 'onset:bit')['sigma'] == 0.2
+    assert calibration.fault_calibration(cal, 'leakage_growth', 'onset')['sigma'] == 0.2
+    assert onset_entry(cal, 'bit') == 'onset:bit'
+    assert onset_entry(cal, 'sine_opposing') == 'onset' == onset_entry(cal, None)
+    assert calibration.onset_widen(cal, 'onset:bit') == 2.0
+    assert calibration.onset_widen(cal, onset_entry(cal, 'my_flight')) == 3.0
+    assert calibration.onset_widen(None, 'onset') == 1.0
+
+
+def test_the_factor_an_onset_interval_needs_against_a_hand_count():
+    """A cost of 100 at 0.3 s, 105 at 0.2, 115 at 0.4, 200 at 0.1, 300 at 0.5: with a width of
+    0.1 the limit is 110 and the interval [0.1, 0.4] holds 0.35 (factor 1); 0.45 needs 0.4
+    inside, 115 <= 100 (1 + 0.1 f): f = 1.5 exactly; 0.05 needs 0.1 inside (f = 10)."""
+    profile = dict(costs={'0.1': 200.0, '0.2': 105.0, '0.3': 100.0, '0.4': 115.0,
+                          '0.5': 300.0}, rss=100.0, width=0.1)
+    assert calibration.widen_needed(profile, (0.0, 1.0), 0.35) == 1.0
+    assert calibration.widen_needed(profile, (0.0, 1.0), 0.45) == pytest.approx(1.5, abs=1e-9)
+    assert calibration.widen_needed(profile, (0.0, 1.0), 0.05) == pytest.approx(10.0, abs=1e-8)
 
 
 def test_onset_units_draw_severities_and_onsets_of_their_own():
-    """The onset units: every diagnosable fault per round, severities between the levels,
-    onsets inside the window, seeds apart from the calibration set's and in sequence."""
+    """The onset units: every diagnosable fault per round and flight, severities between the
+    levels, onsets inside the window of each flight (the built-in test is 2 s), seeds apart
+    from the calibration set's."""
     jobs = calibration.onset_jobs(3, 7)
-    assert len(jobs) == 3 * len(DIAGNOSABLE)
+    per = 3 * len(DIAGNOSABLE)
+    assert len(jobs) == per * len(calibration.ONSET_SCENARIOS)
     assert [j[0] for j in jobs[:len(DIAGNOSABLE)]] == list(DIAGNOSABLE)
     lo, hi = calibration.ONSET_WINDOW
-    assert all(LEVELS[0] <= j[1] <= 1.0 and lo <= j[4] <= hi for j in jobs)
+    for k, scen in enumerate(calibration.ONSET_SCENARIOS):
+        some = jobs[k * per:(k + 1) * per]
+        duration = 2.0 if scen == 'bit' else 1.0
+        assert {j[2] for j in some} == {scen}
+        assert all(LEVELS[0] <= j[1] <= 1.0 and lo * duration <= j[4] <= hi * duration
+                   for j in some)
+    assert max(j[4] for j in jobs) > 1.0                   # the built-in test's own window
     assert len({j[4] for j in jobs}) == len(jobs)
     seeds = {j[3] for j in calibration.calibration_jobs(4, 7)}
     assert not seeds & {j[3] for j in jobs}
+    assert len({j[3] for j in jobs}) == len(jobs)
 
 
 def test_a_bag_is_matched_to_its_calibration_scenario_by_its_inputs():
