@@ -130,7 +130,8 @@ def _verdict_line(d) -> str:
         for f, s, i in zip(b.faults, b.severities, b.intervals))
     if d.onset:
         lo, hi = d.onset['interval']
-        what += (f', from t = {d.onset["t"]:.3f} s ([{lo:.3f}, {hi:.3f}])'
+        oc = f'{d.onset.get("confidence", 0.95):.0%}'.replace('%', ' %')
+        what += (f', from t = {d.onset["t"]:.3f} s ({oc} [{lo:.3f}, {hi:.3f}])'
                  if d.onset.get('identifiable', True) else
                  f', begun between {lo:.3f} and {hi:.3f} s (the run cannot tell when)')
     return what

@@ -108,3 +108,20 @@ def test_report_writes_a_new_directory_and_edits_nothing(tmp_path, monkeypatch, 
     err = capsys.readouterr().err
     assert 'not an empty directory' in err and err.count('\n') == 1
     assert (out / 'report.md').read_text() == before
+
+
+def test_the_verdict_line_states_the_onset_and_its_confidence():
+    """`diagnose`'s line: the severity with the verdict's confidence, and the onset with its
+    own (a pinned onset as a point and interval, an unpinned one as the span it began in)."""
+    from servovalve_twin.cli.phm import _verdict_line
+    from servovalve_twin.prognostics.verdict import Candidate, Diagnosis
+    cand = Candidate('leakage_growth', 1.8, (1.7, 1.9), 0.0, 1.0, {}, {})
+    d = Diagnosis(model='SQ', window=(0.0, 1.0), candidates=[cand], n_eff=100.0,
+                  evaluations=1, recorded={}, confidence=0.9,
+                  onset=dict(t=0.3, interval=[0.298, 0.302], identifiable=True,
+                             confidence=0.9))
+    assert _verdict_line(d) == ('leakage_growth, severity 1.8 (90 % [1.7, 1.9]), from t = '
+                                '0.300 s (90 % [0.298, 0.302])')
+    d.onset = dict(t=0.0, interval=[0.0, 0.36], identifiable=False, confidence=0.95)
+    assert _verdict_line(d).endswith('begun between 0.000 and 0.360 s (the run cannot tell '
+                                     'when)')
