@@ -8,7 +8,7 @@ without the model-form term, once with M and CJ free and once without; so are th
 spread, the onset intervals' factor and the goodness-of-fit reference are fitted to the
 results. Runs in a process pool.
 
-    .venv/bin/python bench/calibrate_diagnosis.py [--units 4] [--seed 7] [--out FILE]
+    .venv/bin/python bench/calibrate_diagnosis.py [--units 3] [--seed 7] [--out FILE]
         [--onset-units 12] [--refit | --reuse | --onset-only]
 """
 
@@ -85,7 +85,8 @@ def _key(job) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument('--units', type=int, default=4, help='units per fault, level, scenario')
+    ap.add_argument('--units', type=int, default=3,
+                    help='units per fault, level, scenario (the packaged calibration: 3)')
     ap.add_argument('--seed', type=int, default=7)
     ap.add_argument('--out', default=str(CALIBRATION_FILE))
     ap.add_argument('--records', default='out/calibration_records.json',
