@@ -244,10 +244,16 @@ def _kernel(points: np.ndarray, g: float | np.ndarray, bandwidth: float = BANDWI
     return np.sum(w * points[:, 1], axis=-1) / np.sum(w, axis=-1)
 
 
+def _conformal_rank(n: int) -> int:
+    """How many of ``n`` units a 90 % split-conformal bound must hold: ``ceil(0.9*(n + 1))``,
+    at most ``n``."""
+    return min(n, math.ceil(0.9 * (n + 1)))
+
+
 def _conformal(dev: np.ndarray, half: Any, lo: float, hi: float) -> float:
     """The smallest parameter in [lo, hi] for which ``|dev| <= half(parameter)`` holds the
-    split-conformal rank of the units (``ceil(0.9*(n + 1))`` of ``n``, at most ``n``)."""
-    need = min(len(dev), math.ceil(0.9 * (len(dev) + 1)))
+    split-conformal rank of the units (:func:`_conformal_rank`)."""
+    need = _conformal_rank(len(dev))
 
     def held(v: float) -> int:
         return int(np.sum(np.abs(dev) <= half(v)))
@@ -354,8 +360,7 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
         need = sorted(r['widen'] for r in rows if r.get('widen') is not None
                       and r['named'] == r['fault'])
         if need:
-            out['onset_widen'][key] = float(need[min(len(need), math.ceil(
-                0.9 * (len(need) + 1))) - 1])
+            out['onset_widen'][key] = float(need[_conformal_rank(len(need)) - 1])
     rms = np.array([r['rms'] for r in records if r.get('rms') is not None])
     out['rms_quantiles'] = {str(q): float(np.quantile(rms, q))
                             for q in (0.5, 0.9, 0.99, 0.999, 1.0)}
@@ -451,6 +456,6 @@ def gof_p_value(cal: Mapping[str, Any], rms: float) -> float:
     return (worse + 1) / (len(ref) + 1)
 
 
-__all__ = ['calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen', 'fit_calibration', 'fault_calibration', 'bias_at',
-           'unit_signals', 'sensor_warnings', 'spread_of', 'load_calibration', 'calibration_for',
+__all__ = ['calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen', 'fit_calibration',
+           'fault_calibration', 'bias_at', 'unit_signals', 'sensor_warnings', 'spread_of', 'load_calibration', 'calibration_for',
            'gof_p_value', 'severity_at', 'to_g', 'from_g']

@@ -147,7 +147,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     # the model-form-corrected one, the severity the answer would state and the detection
     # limits are in: SQ reads a leak on the paper flight ~10 % low, and a 1.7 x leak (limit
     # 1.585 x), fitted at 1.45-1.54, was called healthy (measured)
-    from .calibration import calibration_for
+    from .calibration import calibration_for, onset_widen
     cal = calibration_for(model, free) if model_form else None
     by_name = {c.fault: c for c in candidates}
     best = next(c for c in candidates if c.fault == HEALTHY or (
@@ -170,7 +170,6 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         bounds = [_one_sided(f, iv) for f, iv in zip(hyp, ivs)]
     else:
         bounds = []
-    from .calibration import onset_widen
     from .onset import fit_onset
     # an answer refitted at an onset has an error of its own (the fault seen over part of the
     # window, its instant estimated): the calibration's onset units on this flight (else on

@@ -86,6 +86,10 @@ class OnsetProfile:
             self.fits[tau] = (float(sol.x[0]), float(sol.fun @ sol.fun), sol)
         return self.fits[tau][1]
 
+    def costs(self) -> dict[float, float]:
+        """The RSS of the fit at each tried instant."""
+        return {t: f[1] for t, f in self.fits.items()}
+
     def best(self) -> tuple[float, float, float, Any]:
         tau = min(self.fits, key=lambda t: self.fits[t][1])
         sev, rss, sol = self.fits[tau]
@@ -133,8 +137,7 @@ def _interval(prof: OnsetProfile, rss: float, n: int, n_eff: float, t0: float, t
               widen: float = 1.0) -> tuple[float, float]:
     """:func:`onset_interval` of ``prof``'s tried instants at the likelihood-ratio limit,
     ``widen`` times as wide (the model-form calibration's factor)."""
-    return onset_interval({t: f[1] for t, f in prof.fits.items()}, rss,
-                          widen * lr_width(n, n_eff), t0, t1)
+    return onset_interval(prof.costs(), rss, widen * lr_width(n, n_eff), t0, t1)
 
 
 def _from_start(problem: Problem, ref: Candidate, profiles: list[OnsetProfile], n: int,
@@ -256,8 +259,8 @@ def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: floa
     candidates.insert(0, cand)
     return dict(t=float(tau), interval=[float(lo), float(hi)], fault=prof.fault,
                 identifiable=bool(hi - lo <= ONSET_PINNED),
-                profile=dict(costs={t: f[1] for t, f in prof.fits.items()},
-                             rss=prof.best()[2], width=lr_width(n, n_eff)))
+                profile=dict(costs=prof.costs(), rss=prof.best()[2],
+                             width=lr_width(n, n_eff)))
 
 
 __all__ = ['fit_onset', 'change_point', 'OnsetProfile', 'onset_interval', 'lr_width',
