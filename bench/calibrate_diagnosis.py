@@ -22,7 +22,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_FILE, LEVELS,
-                                                     EXTRA_UNITS, NOISE, ONSET_SCENARIOS,
+                                                     EXTRA_UNITS, NOISE, ONSET_EXTRA,
+                                                     ONSET_SCENARIOS,
                                                      ONSET_UNITS, ONSET_WINDOW, VARY,
                                                      calibration_jobs, fit_calibration,
                                                      onset_jobs, to_g, unit_signals,
@@ -36,16 +37,27 @@ SPREAD = 1.5
 
 
 def record(d, fault, truth):
-    """What the calibration needs of one diagnosis."""
+    """What the calibration needs of one diagnosis: the verdict, and the right hypothesis'
+    fit -- its severity and standard error whatever the verdict (the bias is fitted over
+    every unit: a unit near the verdict floor that reads low is called healthy, and a bias
+    fitted over the named ones alone read too little there)."""
     n = 3 * len(d.recorded['t'])
     right = next(c for c in d.candidates if c.fault == (fault or HEALTHY))
     out = dict(fault=fault, truth=truth, named=None if d.best.fault == HEALTHY else
                d.best.fault, rms=math.sqrt(right.rss / n))
-    if fault is not None and d.best.fault == fault:
-        lo, hi = d.best.interval
-        out.update(estimate=d.best.severity,
+    if fault is not None:
+        # a verdict's interval is its likelihood-ratio one; another candidate's its Jacobian's
+        fitted = d.best if d.best.fault == fault else right
+        lo, hi = fitted.interval
+        out.update(estimate=fitted.severity,
                    se=(to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96))
     return out
+
+
+def _stale(r) -> bool:
+    """A kept unit's diagnoses recorded before every fault unit's record held its right
+    hypothesis' estimate (named or not): diagnosed again."""
+    return any(v['fault'] is not None and 'estimate' not in v for v in r.values())
 
 
 def one(job):
@@ -96,7 +108,8 @@ def main() -> None:
     ap.add_argument('--refit', action='store_true',
                     help='fit the calibration again from --records, diagnosing nothing')
     ap.add_argument('--reuse', action='store_true',
-                    help='diagnose only the units --records lacks (units added to the set)')
+                    help='diagnose only the units --records lacks (units added to the set, '
+                    'or recorded by an older bench)')
     ap.add_argument('--onset-only', action='store_true',
                     help='diagnose the onset units again, the other units taken from --records')
     args = ap.parse_args()
@@ -113,11 +126,12 @@ def main() -> None:
         if not args.onset_only:
             okept = {_key(j): r for j, r in zip(rec.get('onset_jobs', []),
                                                 _unkeyed(rec.get('onset_results', [])))}
-    todo = [j for j in jobs if _key(j) not in kept]
-    otodo = [j for j in ojobs if _key(j) not in okept]
+    todo = [j for j in jobs if _key(j) not in kept or _stale(kept[_key(j)])]
+    otodo = [j for j in ojobs if _key(j) not in okept or _stale(okept[_key(j)])]
     if args.refit and (todo or otodo):
         sys.exit(f'{args.records} lacks {len(todo)} units and {len(otodo)} onset units of this '
-                 'calibration set (units, seed or scenarios differ); run with --reuse')
+                 'calibration set (units, seed or scenarios differ, or records of an older '
+                 'bench); run with --reuse')
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         unit_signals(None, 0.0, 'paper', 0)             # compile in the parent, not per worker
         kept.update(zip(map(_key, todo), pool.map(one, todo, chunksize=2)))
@@ -135,6 +149,7 @@ def main() -> None:
                           extra_units=EXTRA_UNITS,
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
                           spread=SPREAD, onset_units=args.onset_units,
+                          onset_extra=ONSET_EXTRA,
                           onset_window=list(ONSET_WINDOW),
                           onset_scenarios=list(ONSET_SCENARIOS),
                           noise=NOISE, noise_gain='log-uniform 0.5-2',

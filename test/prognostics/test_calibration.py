@@ -165,6 +165,32 @@ def test_a_bias_that_changes_sign_with_the_severity_follows_it_on_the_built_in_t
     assert own['sigma'] < 0.03
 
 
+def test_the_bias_near_the_verdict_floor_counts_the_units_called_healthy():
+    """A leak read more low the milder it is (error -0.2 + 0.1*g in g = ln s) on a flight with
+    units spread across the floor; a unit is named only where it reads at least g = 0.5. The
+    bias at the floor is that of every unit's fit, -0.1364 there (hand: g_est = 1.1 g - 0.2 =
+    0.5 at g = 0.6364); over the named units alone the kernel sees only those above and
+    reads about -0.115 -- the truncation that called leaks beyond the stated limit healthy.
+    The spread is scored on the named units only (the answers an interval is stated for)."""
+    rng = np.random.default_rng(9)
+    rec = []
+    for _ in range(400):
+        g = rng.uniform(0.2, 1.5)
+        e = -0.2 + 0.1 * g + rng.normal(0.0, 0.002)
+        rec.append(dict(fault='leakage_growth', truth=float(np.exp(g)),
+                        named='leakage_growth' if g + e >= 0.5 else None,
+                        estimate=float(np.exp(g + e)), se=0.0, rms=1.0, scenario='paper'))
+    own = fit_calibration(rec)['by_scenario']['paper']['leakage_growth']
+    assert calibration.bias_at(own, 0.5) == pytest.approx(-0.1364, abs=0.004)
+    assert own['units'] == sum(r['named'] is not None for r in rec) < own['fitted'] == 400
+    # left out: a unit whose fit is not recorded (an older record), and one whose right
+    # hypothesis stayed at healthy while another fault took the run (it found no leak)
+    rec.append(dict(fault='leakage_growth', truth=2.0, named=None, rms=1.0, scenario='paper'))
+    rec.append(dict(fault='leakage_growth', truth=2.0, named='supply_loss', estimate=1.0,
+                    se=0.01, rms=1.0, scenario='paper'))
+    assert fit_calibration(rec)['by_scenario']['paper']['leakage_growth']['fitted'] == 400
+
+
 def test_a_kernel_bias_is_scored_on_units_it_was_not_fitted_to():
     """Eight units 0.6 apart in g (twice the bandwidth), errors alternating +-0.1: a kernel
     through them nearly interpolates each one, so its spread must come from each unit left
@@ -283,20 +309,24 @@ def test_the_factor_an_onset_interval_needs_against_a_hand_count():
 
 
 def test_onset_units_draw_severities_and_onsets_of_their_own():
-    """The onset units: every diagnosable fault per round and flight, severities between the
-    levels, onsets inside the window of each flight (the built-in test is 2 s), seeds apart
-    from the calibration set's."""
+    """The onset units: every diagnosable fault per round and flight (more on the built-in
+    test), severities between the levels, onsets inside the window of each flight (the
+    built-in test is 2 s), seeds apart from the calibration set's."""
     jobs = calibration.onset_jobs(3, 7)
-    per = 3 * len(DIAGNOSABLE)
-    assert len(jobs) == per * len(calibration.ONSET_SCENARIOS)
+    assert len(jobs) == sum(3 + calibration.ONSET_EXTRA.get(scen, 0)
+                            for scen in calibration.ONSET_SCENARIOS) * len(DIAGNOSABLE)
     assert [j[0] for j in jobs[:len(DIAGNOSABLE)]] == list(DIAGNOSABLE)
     lo, hi = calibration.ONSET_WINDOW
-    for k, scen in enumerate(calibration.ONSET_SCENARIOS):
-        some = jobs[k * per:(k + 1) * per]
+    for scen in calibration.ONSET_SCENARIOS:
+        some = [j for j in jobs if j[2] == scen]
         duration = 2.0 if scen == 'bit' else 1.0
-        assert {j[2] for j in some} == {scen}
+        assert len(some) == (3 + calibration.ONSET_EXTRA.get(scen, 0)) * len(DIAGNOSABLE)
         assert all(LEVELS[0] <= j[1] <= 1.0 and lo * duration <= j[4] <= hi * duration
                    for j in some)
+    # the extra units come after the first ones, whose seeds do not depend on them
+    assert [j[3] for j in jobs] == [7 * 1_000_003 + 500_000 + k for k in range(len(jobs))]
+    assert [j[2] for j in jobs] == sorted((j[2] for j in jobs),
+                                          key=calibration.ONSET_SCENARIOS.index)
     assert max(j[4] for j in jobs) > 1.0                   # the built-in test's own window
     assert len({j[4] for j in jobs}) == len(jobs)
     seeds = {j[3] for j in calibration.calibration_jobs(4, 7)}
