@@ -20,8 +20,8 @@ for a fraction or a value, ``span`` the distance from healthy to the alarm value
   (over the named ones alone it is truncated at the verdict floor); on a calibration
   scenario's own entry a line in the estimate, or where extra units spread between the levels
   a kernel mean that follows it (on the built-in test SQ reads static friction 20 % low up to
-  ~5 x and 10-25 % high at 20 x; on the paper flight a leak of 1.7 x, near the floor, 15 %
-  low);
+  ~5 x and 10-25 % high at 20 x; on the paper flight a leak at its stated limit, 1.585 x,
+  near the verdict floor, 12.6 % low, and 4 % low at 10 x, M and CJ free);
 - ``sigma``: the model-form spread, set so that ``g(estimate) - bias +- z*sqrt(se^2 + sigma^2)``
   holds ``g(truth)`` in ``ceil(0.9*(n + 1))`` of the ``n`` pinned units where the fault was
   named (the answers an interval is stated for) at z = 1.645 (``se`` the fit's own standard
