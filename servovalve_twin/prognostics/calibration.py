@@ -300,13 +300,13 @@ def _fit_faults(records: Sequence[Mapping[str, Any]], *, shape: str, min_units: 
         # (a right hypothesis fitted at the healthy severity found no fault -- a supply loss
         # whose fit stayed at 0 while a leak took the run -- and says nothing of the bias of
         # one that found it)
-        rows = [r for r in records if r['fault'] == fault and r.get('estimate') is not None
-                and abs(to_g(fault, r['estimate'])) > HEALTHY_FIT * abs(to_g(fault, FAULTS[
-                    fault].demo))]
+        rows = [r for r in records if r['fault'] == fault and r.get('estimate') is not None]
+        ge = np.array([to_g(fault, r['estimate']) for r in rows])
+        found = np.abs(ge) > HEALTHY_FIT * abs(to_g(fault, FAULTS[fault].demo))
+        rows, ge = [r for r, f in zip(rows, found) if f], ge[found]
         named = np.array([r['named'] == fault for r in rows], dtype=bool)
         if named.sum() < min_units:
             continue
-        ge = np.array([to_g(fault, r['estimate']) for r in rows])
         err = ge - np.array([to_g(fault, r['truth']) for r in rows])
         se = np.array([r['se'] for r in rows])
         pinned = se <= SE_PINNED
@@ -483,5 +483,5 @@ def gof_p_value(cal: Mapping[str, Any], rms: float) -> float:
 
 
 __all__ = ['calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen', 'fit_calibration',
-           'fault_calibration', 'bias_at', 'unit_signals', 'sensor_warnings', 'spread_of', 'load_calibration', 'calibration_for',
-           'gof_p_value', 'severity_at', 'to_g', 'from_g']
+           'fault_calibration', 'bias_at', 'unit_signals', 'sensor_warnings', 'spread_of',
+           'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at', 'to_g', 'from_g']
