@@ -560,6 +560,29 @@ def test_close_onset_hypotheses_are_each_refitted_with_the_nuisance():
 
 
 @pytest.mark.slow
+def test_an_onset_cost_is_profiled_over_the_free_nuisance():
+    """A null bias at its alarm value from 0.6 s on the built-in test, where the jack slews at
+    its rate limit from 0.55 s to past 0.9 s and a bias does not show: with M and CJ held
+    where the fit from the start put them (CJ 0.95), the onset's cost was lowest at 0.547 s
+    and the noise's interval [0.537, 0.554] excluded the truth (measured). Refitted with the
+    nuisance at each instant the cost is as low anywhere on the slew (CJ 0.67): the onset is
+    not identifiable there, and the interval -- the noise's alone, no calibration -- says so
+    with the truth inside. The costs kept are the lower of held and refitted."""
+    sig, truth, _ = calibration.unit_signals('null_bias', 1.0, 'bit', 22222271, spread=1.5,
+                                             onset=0.6)
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
+                 model_form=False)
+    assert d.best.fault == 'null_bias' and d.onset['confidence'] == 0.95
+    lo, hi = d.onset['interval']
+    assert lo <= 0.6 <= hi and hi - lo > 0.1 and not d.onset['identifiable']
+    assert d.best.free['CJ'] < 0.8
+    costs = d.onset_profile['costs']
+    assert d.onset_profile['rss'] == min(costs.values()) == pytest.approx(d.best.rss)
+    on_slew = [c for t, c in costs.items() if 0.58 <= t <= 0.9]
+    assert on_slew and max(on_slew) < d.best.rss * (1 + d.onset_profile['width'])
+
+
+@pytest.mark.slow
 def test_an_onset_interval_is_widened_by_the_calibrated_factor():
     """A null bias of 0.6 of its alarm value from 0.6 s on the built-in test: the cost of an
     onset is lowest at 0.550 s, just before the command steps, and any instant to 0.98 s fits
