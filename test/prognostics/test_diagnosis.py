@@ -2,6 +2,7 @@
 trends and RUL against hand computations, the CLI's JSON and its refusals."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -557,6 +558,38 @@ def test_close_onset_hypotheses_are_each_refitted_with_the_nuisance():
     assert not d.verdict and d.best.fault == 'supply_loss' == d.onset['fault']
     assert abs(d.onset['t'] - 1.2) <= 0.05
     assert d.best.severity == pytest.approx(truth, rel=0.05)
+
+
+def test_a_severity_at_the_catalogs_end_keeps_that_end_in_its_interval():
+    """model_form_estimate against a hand computation: null bias (g = s / 5 mA), a bias of
+    -0.02 in g and a spread of 0.01. Fitted -4.9 mA with a 95 % interval of +-0.1 mA: g -0.98,
+    corrected -0.96; se 0.04 / 3.92; half-width 1.6449 * hypot(se, 0.01) -- both ends from
+    that. Fitted at the catalog's end, -5 mA (95 % interval [-5, -4.9]): corrected -0.98, the
+    same half-width of hypot(0.02 / 3.92, 0.01), and the interval runs on to -5 mA, where the
+    fit was stopped (it would have read beyond). The same at +5 mA; not at healthy's end of a
+    multiplier (a leak fitted at 1 x is not censored)."""
+    from servovalve_twin.prognostics.diagnosis import model_form_estimate
+    entry = dict(bias=-0.02, slope=0.0, sigma=0.01, k=1.0, units=30)
+    cal = dict(faults=dict(null_bias=entry, leakage_growth=entry), by_scenario={})
+    est, (lo, hi), _ = model_form_estimate(cal, 'null_bias', -4.9e-3, (-5.0e-3, -4.8e-3))
+    half = 1.6449 * math.hypot(0.04 / 3.92, 0.01)
+    assert est == pytest.approx(-0.96 * 5e-3)
+    assert (lo, hi) == pytest.approx(((-0.96 - half) * 5e-3, (-0.96 + half) * 5e-3))
+    est, (lo, hi), _ = model_form_estimate(cal, 'null_bias', -5.0e-3, (-5.0e-3, -4.9e-3))
+    half = 1.6449 * math.hypot(0.02 / 3.92, 0.01)
+    assert est == pytest.approx(-0.98 * 5e-3) and lo == -5.0e-3
+    assert hi == pytest.approx((-0.98 + half) * 5e-3)
+    up = dict(faults=dict(null_bias=dict(entry, bias=0.02)), by_scenario={})
+    est, (lo, hi), _ = model_form_estimate(up, 'null_bias', 5.0e-3, (4.9e-3, 5.0e-3))
+    assert est == pytest.approx(0.98 * 5e-3) and hi == 5.0e-3
+    assert lo == pytest.approx((0.98 - half) * 5e-3)
+    # corrected beyond the catalog's end, the interval is the end, not inverted
+    est, (lo, hi), _ = model_form_estimate(cal, 'null_bias', 5.0e-3, (4.9e-3, 5.0e-3))
+    assert est == lo == hi == 5.0e-3
+    g = math.log(1.02)
+    est, (lo, hi), _ = model_form_estimate(cal, 'leakage_growth', 1.0, (1.0, 1.02))
+    half = 1.6449 * math.hypot(g / 3.92, 0.01)
+    assert (lo, hi) == pytest.approx((math.exp(0.02 - half), math.exp(0.02 + half)))
 
 
 @pytest.mark.slow
