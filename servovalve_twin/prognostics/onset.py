@@ -133,11 +133,11 @@ def lr_width(n: int, n_eff: float) -> float:
     return CHI2_95 * (n / n_eff) / max(n - 2, 1)
 
 
-def _interval(prof: OnsetProfile, rss: float, n: int, n_eff: float, t0: float, t1: float,
-              widen: float = 1.0) -> tuple[float, float]:
-    """:func:`onset_interval` of ``prof``'s tried instants at the likelihood-ratio limit,
+def _interval(costs: Mapping[float, float], rss: float, n: int, n_eff: float, t0: float,
+              t1: float, widen: float = 1.0) -> tuple[float, float]:
+    """:func:`onset_interval` of the tried instants' ``costs`` at the likelihood-ratio limit,
     ``widen`` times as wide (the model-form calibration's factor)."""
-    return onset_interval(prof.costs(), rss, widen * lr_width(n, n_eff), t0, t1)
+    return onset_interval(costs, rss, widen * lr_width(n, n_eff), t0, t1)
 
 
 def _from_start(problem: Problem, ref: Candidate, profiles: list[OnsetProfile], n: int,
@@ -153,7 +153,7 @@ def _from_start(problem: Problem, ref: Candidate, profiles: list[OnsetProfile], 
     if prof is None:
         return None
     t0, t1 = problem.window
-    _, hi = _interval(prof, min(ref.rss, prof.best()[2]), n, n_eff, t0, t1, widen)
+    _, hi = _interval(prof.costs(), min(ref.rss, prof.best()[2]), n, n_eff, t0, t1, widen)
     if hi - t0 <= ONSET_PINNED:
         return None
     return dict(t=float(t0), interval=[float(t0), float(hi)], fault=prof.fault,
@@ -200,9 +200,11 @@ def _nuisance_profile(problem: Problem, prof: OnsetProfile, chosen: tuple
     for t, (sev, cost, _) in sorted(prof.fits.items()):
         if t in fits or cost > CONTENDER * best_held:
             continue
-        x, res, jac = fit(problem, [prof.fault], names, onset=t,
-                          starts=[[sev] + [held[k] for k in names],
-                                  [sev] + [free[k] for k in names]])
+        # (from the held nuisance and from the onset's refit of it, where that moved it)
+        starts = [[sev] + [held[k] for k in names]]
+        if free != held:
+            starts.append([sev] + [free[k] for k in names])
+        x, res, jac = fit(problem, [prof.fault], names, onset=t, starts=starts)
         fits[t] = (t, float(x[0]), float(res @ res), x, res, jac,
                    {k: float(v) for k, v in zip(names, x[1:])})
     costs = prof.costs()
@@ -281,8 +283,8 @@ def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: floa
     if free:
         costs, (tau, sev, rss, x, res, jac, free) = _nuisance_profile(
             problem, prof, (tau, sev, rss, x, res, jac, free))
-    width = lr_width(n, n_eff)
-    lo, hi = onset_interval(costs, min(costs.values()), widen * width, t0, t1)
+    best_rss = min(costs.values())
+    lo, hi = _interval(costs, best_rss, n, n_eff, t0, t1, widen)
     spec = FAULTS[prof.fault]
     cand = prof.cand
     cand.free = free
@@ -295,7 +297,7 @@ def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: floa
     candidates.insert(0, cand)
     return dict(t=float(tau), interval=[float(lo), float(hi)], fault=prof.fault,
                 identifiable=bool(hi - lo <= ONSET_PINNED),
-                profile=dict(costs=costs, rss=min(costs.values()), width=width))
+                profile=dict(costs=costs, rss=best_rss, width=lr_width(n, n_eff)))
 
 
 __all__ = ['fit_onset', 'change_point', 'OnsetProfile', 'onset_interval', 'lr_width',
