@@ -56,8 +56,10 @@ def record(d, fault, truth):
 
 def _stale(r) -> bool:
     """A kept unit's diagnoses recorded before every fault unit's record held its right
-    hypothesis' estimate (named or not): diagnosed again."""
-    return any(v['fault'] is not None and 'estimate' not in v for v in r.values())
+    hypothesis' estimate (named or not), or an onset unit's before its onset cost was kept:
+    diagnosed again."""
+    return any(v['fault'] is not None and 'estimate' not in v
+               or v.get('refitted') and 'profile' not in v for v in r.values())
 
 
 def one(job):
@@ -77,10 +79,22 @@ def one_onset(job):
         d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=free,
                      model_form=False, onset=True)
         refitted = bool(d.onset and not d.onset.get('from_start'))
+        # the onset's cost per tried instant is kept, not only the factor it needs: a change
+        # to how an interval is read from it is then a --refit, not an hour of diagnoses
+        profile = None if not refitted else dict(
+            costs=sorted([float(t), float(c)] for t, c in d.onset_profile['costs'].items()),
+            rss=d.onset_profile['rss'], width=d.onset_profile['width'], window=list(d.window))
         out[free] = dict(record(d, fault, truth), scenario=scen, onset=at, refitted=refitted,
-                         widen=widen_needed(d.onset_profile, d.window, at) if refitted
-                         else None)
+                         profile=profile)
     return out
+
+
+def with_widen(r):
+    """An onset unit's record with the factor its interval needs (:func:`widen_needed` of
+    its kept profile; None where the answer was not refitted at an onset)."""
+    p = r.get('profile')
+    return dict(r, widen=None if p is None else widen_needed(
+        dict(p, costs=dict(p['costs'])), tuple(p['window']), r['onset']))
 
 
 def _keyed(results):
@@ -156,7 +170,7 @@ def main() -> None:
                           diagnoses=len(jobs) + len(ojobs)))
     for free in FREE_SETS:
         out[f'SQ/{",".join(free)}'] = fit_calibration([r[free] for r in results],
-                                                      [r[free] for r in onsets])
+                                                      [with_widen(r[free]) for r in onsets])
     with open(args.out, 'w', encoding='utf-8') as fh:
         json.dump(out, fh, indent=1, sort_keys=True)
         fh.write('\n')

@@ -210,9 +210,13 @@ def onset_jobs(units: int, seed: int) -> list[tuple]:
 
 def widen_needed(profile: Mapping[str, Any], window: tuple[float, float], truth: float
                  ) -> float:
-    """The smallest factor (at least 1) on the likelihood-ratio width for which an onset
-    answer's interval (:func:`.onset.onset_interval` over its ``profile``) holds the true
-    onset ``truth`` (the interval only grows with the factor)."""
+    """The smallest factor on the likelihood-ratio width for which an onset answer's interval
+    (:func:`.onset.onset_interval` over its ``profile``) holds the true onset ``truth`` (the
+    interval only grows with the factor): 0 where the tried instants bracketing the lowest
+    cost hold it, below 1 where a narrower interval than the noise's 95 % one would. Not
+    floored at 1: with M and CJ free, 92-94 % of the onset units held the truth at 1 and the
+    benches' onset intervals 106 of 106 for a stated 90 % (measured) -- the factor is the
+    one the data call for, either way."""
     from .onset import onset_interval
     costs = {float(t): c for t, c in profile['costs'].items()}
 
@@ -220,14 +224,14 @@ def widen_needed(profile: Mapping[str, Any], window: tuple[float, float], truth:
         lo, hi = onset_interval(costs, profile['rss'], f * profile['width'], *window)
         return lo <= truth <= hi
 
-    if holds(1.0):
-        return 1.0
-    lo, hi = 1.0, 2.0
+    if holds(0.0):
+        return 0.0
+    lo, hi = 0.0, 1.0
     while not holds(hi):
         lo, hi = hi, hi * 2.0
         if hi > 1e9:
             return math.inf
-    for _ in range(40):
+    for _ in range(50):
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if holds(mid) else (mid, hi)
     return hi

@@ -298,12 +298,15 @@ def test_an_onset_flight_without_enough_units_falls_back_to_the_onset_entry():
 
 
 def test_the_factor_an_onset_interval_needs_against_a_hand_count():
-    """A cost of 100 at 0.3 s, 105 at 0.2, 115 at 0.4, 200 at 0.1, 300 at 0.5: with a width of
-    0.1 the limit is 110 and the interval [0.1, 0.4] holds 0.35 (factor 1); 0.45 needs 0.4
-    inside, 115 <= 100 (1 + 0.1 f): f = 1.5 exactly; 0.05 needs 0.1 inside (f = 10)."""
+    """A cost of 100 at 0.3 s, 105 at 0.2, 115 at 0.4, 200 at 0.1, 300 at 0.5, a width of 0.1:
+    the instants bracketing the lowest cost, [0.2, 0.4], hold 0.35 at any factor (0); 0.15
+    needs 0.2 inside, 105 <= 100 (1 + 0.1 f): f = 0.5 exactly -- below 1, the factor is not
+    floored at the noise's width; 0.45 needs 0.4 inside: f = 1.5; 0.05 needs 0.1 inside (f =
+    10)."""
     profile = dict(costs={'0.1': 200.0, '0.2': 105.0, '0.3': 100.0, '0.4': 115.0,
                           '0.5': 300.0}, rss=100.0, width=0.1)
-    assert calibration.widen_needed(profile, (0.0, 1.0), 0.35) == 1.0
+    assert calibration.widen_needed(profile, (0.0, 1.0), 0.35) == 0.0
+    assert calibration.widen_needed(profile, (0.0, 1.0), 0.15) == pytest.approx(0.5, abs=1e-9)
     assert calibration.widen_needed(profile, (0.0, 1.0), 0.45) == pytest.approx(1.5, abs=1e-9)
     assert calibration.widen_needed(profile, (0.0, 1.0), 0.05) == pytest.approx(10.0, abs=1e-8)
 
