@@ -173,7 +173,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     from .onset import fit_onset
     # an answer refitted at an onset has an error of its own (the fault seen over part of the
     # window, its instant estimated): the calibration's onset units on this flight (else on
-    # every onset flight) set its correction, its spread and how much wider than the noise
+    # every onset flight) set its correction, its spread and how wide against the noise's
     # alone the onset's interval is
     entry = onset_entry(cal, scenario)
     onset_fit = fit_onset(problem, candidates, n, n_eff,

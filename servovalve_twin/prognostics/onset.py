@@ -223,9 +223,10 @@ def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: floa
     golden section. Reported when it beats the best candidate from the
     start by PAIR_EVIDENCE in BIC (tau, and the severity too against healthy, are parameters
     more); the taus whose RSS stays within the 95 % likelihood-ratio limit, ``widen`` times as
-    wide (the model-form calibration's factor: the simplified model's mismatch makes the cost
-    sharper than the noise alone would), are its interval, ``identifiable`` when it is at most
-    :data:`ONSET_PINNED` wide. The answer keeps the chosen fault's cost per tried instant
+    wide (the model-form calibration's factor: above 1 where the simplified model's mismatch
+    makes the cost sharper than the noise alone would, below where the noise's interval holds
+    the truth more often than the stated 90 %), are its interval, ``identifiable`` when it is
+    at most :data:`ONSET_PINNED` wide. The answer keeps the chosen fault's cost per tried instant
     (``costs``, with ``rss`` and ``width``: what the calibration reads the factor from).
     The hypotheses whose profiles come within :data:`CONTENDER` of the best are refitted at
     their onsets jointly with the free nuisance (:func:`_at_onset`); the best of those is moved

@@ -622,11 +622,12 @@ def test_an_onset_interval_is_widened_by_the_calibrated_factor():
     built-in test, a null bias of -3.05 mA from 0.566 s, needs 1.85 x the likelihood-ratio
     width for its interval to hold the truth (recorded by bench/calibrate_diagnosis.py).
     Widened by that flight's onset factor for nothing free (2.04, from the calibration's onset
-    units there) it holds it; with M and CJ free the factor is 1 (the profiled cost is as
-    wide as the noise allows: 90 % of the onset units held at 1)."""
+    units there) it holds it. With M and CJ free the factor is below 1: the cost is profiled
+    over the nuisance, and 90 % of the built-in test's onset units hold the truth at 0.39 of
+    the noise's 95 % likelihood-ratio width (a 90 % one is 2.71 / 3.84 = 0.71 of it)."""
     from servovalve_twin.prognostics.calibration import calibration_for, onset_widen
     assert onset_widen(calibration_for('SQ', ()), 'onset:bit') > 1.85
-    assert onset_widen(calibration_for('SQ', ('CJ', 'M')), 'onset:bit') == 1.0
+    assert onset_widen(calibration_for('SQ', ('CJ', 'M')), 'onset:bit') < 1.0
     sig, truth, _ = calibration.unit_signals('null_bias', 0.6107, 'bit', 7500173, spread=1.5,
                                              onset=0.566)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', onset=True, scenario='bit')
