@@ -180,6 +180,10 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                           lambda f, s: _unbiased(cal, f, s, entry),
                           widen=onset_widen(cal, entry)) if onset else None
     onset_profile = onset_fit.pop('profile', None) if onset_fit else None
+    # a fault that may have begun any time up to the onset interval's end: its severity is
+    # what fits from the start or from that late (:func:`.onset.severity_range`), and where
+    # that reaches the catalog's end the answer is a one-sided bound
+    late = onset_fit.pop('severity_range', None) if onset_fit else None
     if onset_fit is not None:
         # (the factor is set for 90 % of the calibration's onset units; without it the
         # interval is the noise's 95 % likelihood-ratio one)
@@ -193,6 +197,9 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     if bootstrap and best.fault != HEALTHY and not refitted:
         boot = bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
+    if late is not None:
+        best.interval = (min(best.interval[0], late[0]), max(best.interval[1], late[1]))
+        bounds = [_one_sided(best.fault, best.interval)]
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
                   evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
                   fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit,
@@ -214,6 +221,12 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                           'it more can pin it)')
     if model_form:
         _apply_model_form(d, cal, free, entry if refitted else scenario, problem)
+        if late is not None and bounds[0] and d.verdict != UNEXPLAINED:
+            # (the model-form spread is symmetric about the corrected estimate: a bound that
+            # runs to the catalog's end keeps it)
+            spec = FAULTS[best.fault]
+            lo, hi = best.interval
+            best.interval = (lo, spec.hi) if spec.demo > spec.healthy else (spec.lo, hi)
     return d
 
 

@@ -655,6 +655,24 @@ def test_a_fault_that_fits_as_well_from_the_start_is_not_called_present_from_it(
 
 
 @pytest.mark.slow
+def test_a_fault_whose_onset_is_not_identifiable_is_not_sized_by_the_flight_before_it():
+    """A static friction of 31 x from 1.2 s on the built-in test: it shows only after ~1.46 s,
+    so the onset is not identifiable and the fit from the start stands -- but from the start
+    the jack would stick in the opening steps from ~20 x, which bounded the severity: 16.4 x
+    in [9.1, 29.5], the truth outside (measured). With the onset anywhere up to 1.46 s the
+    severity fits alike from ~8 to ~35 x, and the interval must say so."""
+    sig, truth, _ = calibration.unit_signals('static_friction', 1.15, 'bit', 22222299,
+                                             spread=1.5, onset=1.2)
+    assert truth == pytest.approx(31.35, abs=0.01)
+    d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
+                 scenario='bit')
+    assert d.best.fault == 'static_friction' and d.onset['from_start']
+    lo, hi = d.best.interval
+    assert lo <= truth <= hi and lo < 10.0
+    assert 'severity_range' not in d.onset
+
+
+@pytest.mark.slow
 def test_an_onset_of_a_fault_too_small_to_report_is_no_verdict():
     """A static friction of 6 x from 0.6 s on the paper's flight (below its limit there): the
     best change point is a dynamic friction of 1.5 x from a wrong instant, below the verdict
