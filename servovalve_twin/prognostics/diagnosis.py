@@ -183,7 +183,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     # a fault that may have begun any time up to the onset interval's end: its severity is
     # what fits from the start or from that late (:func:`.onset.severity_range`), and where
     # that reaches the catalog's end the answer is a one-sided bound
-    late = onset_fit.pop('severity_range', None) if onset_fit else None
+    late_range = onset_fit.pop('severity_range', None) if onset_fit else None
     if onset_fit is not None:
         # (the factor is set for 90 % of the calibration's onset units; without it the
         # interval is the noise's 95 % likelihood-ratio one)
@@ -197,8 +197,9 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     if bootstrap and best.fault != HEALTHY and not refitted:
         boot = bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
-    if late is not None:
-        best.interval = (min(best.interval[0], late[0]), max(best.interval[1], late[1]))
+    if late_range is not None:
+        best.interval = (min(best.interval[0], late_range[0]),
+                         max(best.interval[1], late_range[1]))
         bounds = [_one_sided(best.fault, best.interval)]
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
                   evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
@@ -221,7 +222,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
                           'it more can pin it)')
     if model_form:
         _apply_model_form(d, cal, free, entry if refitted else scenario, problem)
-        if late is not None and bounds[0] and d.verdict != UNEXPLAINED:
+        if late_range is not None and bounds[0] and d.verdict != UNEXPLAINED:
             # (the model-form spread is symmetric about the corrected estimate: a bound that
             # runs to the catalog's end keeps it)
             spec = FAULTS[best.fault]

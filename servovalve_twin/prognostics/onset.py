@@ -175,12 +175,12 @@ def severity_range(problem: Problem, prof: OnsetProfile, tau: float, limit: floa
                    ) -> tuple[float, float] | None:
     """The severities of ``prof``'s fault from ``tau`` whose RSS stays within ``limit`` (a
     grid of :data:`RANGE_POINTS` over the catalog's range and the profile's own fit there,
-    the nuisance held), None where none does. A fault that may have begun as late as ``tau`` is not bounded by what the
-    fit from the start makes of the flight before it: a static friction of 20 x from 1.2 s
-    on the built-in test fits alike (RSS within 0.04 %) from 8 to 25 x with any onset from
-    0.6 s on and within 3.5 % at 50 x, but from the start the jack sticks in the opening
-    steps from ~20 x (RSS 2.1 x) -- a 31 x one from 1.2 s was reported as 16.4 x in
-    [9.1, 29.5] (measured)."""
+    the nuisance held), None where none does. A fault that may have begun as late as
+    ``tau`` is not bounded by what the fit from the start makes of the flight before it: a
+    static friction of 20 x from 1.2 s on the built-in test fits alike (RSS within 0.04 %)
+    from 8 to 25 x with any onset from 0.6 s on and within 3.5 % at 50 x, but from the
+    start the jack sticks in the opening steps from ~20 x (RSS 2.1 x) -- a 31 x one from
+    1.2 s was reported as 16.4 x in [9.1, 29.5] (measured)."""
     spec = FAULTS[prof.fault]
     if spec.kind == 'scale':
         grid = np.geomspace(max(spec.lo, spec.healthy), spec.hi, RANGE_POINTS)
