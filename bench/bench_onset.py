@@ -8,6 +8,7 @@ calibration flies onset units on it -- paper and bit -- else the pooled one);
 diagnosed with SQ, M and CJ free, the onset fitted.
 
     .venv/bin/python bench/bench_onset.py [--units 1] [--seed 3] [--scenario paper]
+        [--levels 0.6 1.0]
 """
 
 import argparse
@@ -18,8 +19,9 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import unit_signals
+from servovalve_twin.prognostics.calibration import severity_at, unit_signals
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, diagnose
 
 #: when the fault begins, as fractions of the flight
@@ -46,6 +48,9 @@ def main() -> None:
     ap.add_argument('--units', type=int, default=1, help='units per fault, level and onset')
     ap.add_argument('--seed', type=int, default=3)
     ap.add_argument('--scenario', default='paper', help='a built-in scenario')
+    ap.add_argument('--levels', type=float, nargs='+', default=list(LEVELS),
+                    help='severities as fractions of the way to the alarm value (beyond 1: '
+                    'past it)')
     args = ap.parse_args()
     sys.path.insert(0, 'bench')
     from bench_physics import machine
@@ -54,15 +59,20 @@ def main() -> None:
     onsets = tuple(round(x * duration, 6) for x in ONSETS)
     base = args.seed * 5_555_555 + 29                 # never a calibration seed (7e6+)
     jobs = [(f, q, at, base + k, args.scenario) for k, (f, q, at, _) in enumerate(
-        (f, q, at, u) for f in DIAGNOSABLE for q in LEVELS for at in onsets
-        for u in range(args.units))]
+        (f, q, at, u) for f in DIAGNOSABLE for q in args.levels for at in onsets
+        for u in range(args.units) if FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi)]
+    # (a level past the alarm value can lie beyond the catalog's range: such units are left out)
+    left_out = sorted({f'{f} at {q}' for f in DIAGNOSABLE for q in args.levels
+                       if not FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi})
     unit_signals(None, 0.0, args.scenario, 0)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         res = list(pool.map(one, jobs))
     print(f'machine: {machine()}; {len(jobs)} HD units, faults from {onsets} s at '
-          f'{LEVELS} of the way to their alarm values, {args.scenario} scenario, nuisance x1.5, noise '
-          f'0.5-2x; SQ, free CJ,M, --onset; {time.perf_counter() - t0:.0f} s')
+          f'{tuple(args.levels)} of the way to their alarm values, {args.scenario} scenario, '
+          f'nuisance x1.5, noise '
+          f'0.5-2x; SQ, free CJ,M, --onset; {time.perf_counter() - t0:.0f} s'
+          + (f'; beyond the catalog, left out: {", ".join(left_out)}' if left_out else ''))
     print('\n| fault | units | named | onset within 50 ms | stated not identifiable, interval '
           'holds it | onset interval holds it | severity within 15 % | 90 % interval holds it |')
     print('|---|---|---|---|---|---|---|---|')
@@ -113,8 +123,8 @@ def main() -> None:
     for r in res:
         if r['named'] == r['fault'] and (r['onset'] is None or abs(r['onset'] - r['at']) > 0.05):
             print(f'onset off: {r["fault"]} q {r["q"]} from {r["at"]} s: onset {r["onset"]} '
-                  f'in {r["onset_interval"]}, severity {r["severity"]:.4g} (truth '
-                  f'{r["truth"]:.4g})')
+                  f'in {r["onset_interval"]}, severity {r["severity"]:.4g} in '
+                  f'[{r["interval"][0]:.4g}, {r["interval"][1]:.4g}] (truth {r["truth"]:.4g})')
 
 
 if __name__ == '__main__':
