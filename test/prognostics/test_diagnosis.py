@@ -655,6 +655,24 @@ def test_a_fault_that_fits_as_well_from_the_start_is_not_called_present_from_it(
 
 
 @pytest.mark.slow
+def test_an_answer_past_the_alarm_value_says_it_is_extrapolated():
+    """The calibration flies severities up to each fault's alarm value; an interval wholly
+    past it is extrapolated and must say so: a dynamic friction of 22.7 x (alarm 15 x: a
+    multiplier) and a supply loss of 0.345 (alarm 0.3: a fraction), each 1.15 of the way to
+    its alarm value on the paper flight; not a leak at its alarm value (10 x), whose interval
+    straddles it."""
+    def warned(fault, q):
+        sig, truth, _ = calibration.unit_signals(fault, q, 'paper', 5, spread=1.5)
+        d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'),
+                     scenario='paper')
+        assert d.best.fault == fault
+        return any(w.startswith(f'{fault} past its alarm value') for w in d.warnings)
+    assert warned('dynamic_friction', 1.15)
+    assert warned('supply_loss', 1.15)
+    assert not warned('leakage_growth', 1.0)
+
+
+@pytest.mark.slow
 def test_a_fault_whose_onset_is_not_identifiable_is_not_sized_by_the_flight_before_it():
     """A static friction of 31 x from 1.2 s on the built-in test: it shows only after ~1.46 s,
     so the onset is not identifiable and the fit from the start stands -- but from the start
