@@ -43,6 +43,11 @@ def one(job):
                 seconds=time.perf_counter() - t0)
 
 
+def in_catalog(fault: str, q: float) -> bool:
+    """The severity ``q`` of the way to ``fault``'s alarm value lies in the catalog's range."""
+    return FAULTS[fault].lo <= severity_at(fault, q) <= FAULTS[fault].hi
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--units', type=int, default=1, help='units per fault, level and onset')
@@ -60,10 +65,10 @@ def main() -> None:
     base = args.seed * 5_555_555 + 29                 # never a calibration seed (7e6+)
     jobs = [(f, q, at, base + k, args.scenario) for k, (f, q, at, _) in enumerate(
         (f, q, at, u) for f in DIAGNOSABLE for q in args.levels for at in onsets
-        for u in range(args.units) if FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi)]
+        for u in range(args.units) if in_catalog(f, q))]
     # (a level past the alarm value can lie beyond the catalog's range: such units are left out)
     left_out = sorted({f'{f} at {q}' for f in DIAGNOSABLE for q in args.levels
-                       if not FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi})
+                       if not in_catalog(f, q)})
     unit_signals(None, 0.0, args.scenario, 0)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:

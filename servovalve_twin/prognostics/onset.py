@@ -181,12 +181,8 @@ def severity_range(problem: Problem, prof: OnsetProfile, tau: float, limit: floa
     from 8 to 25 x with any onset from 0.6 s on and within 3.5 % at 50 x, but from the
     start the jack sticks in the opening steps from ~20 x (RSS 2.1 x) -- a 31 x one from
     1.2 s was reported as 16.4 x in [9.1, 29.5] (measured)."""
-    spec = FAULTS[prof.fault]
-    if spec.kind == 'scale':
-        grid = np.geomspace(max(spec.lo, spec.healthy), spec.hi, RANGE_POINTS)
-    else:
-        grid = np.linspace(spec.lo, spec.hi, RANGE_POINTS)
-    grid = np.append(grid, prof.fits[tau][0]) if tau in prof.fits else grid
+    grid = start_grid(prof.fault, RANGE_POINTS) + (
+        [prof.fits[tau][0]] if tau in prof.fits else [])
     runs = [(prof.nominal, ((tau, prof.fault, float(v)),)) for v in grid]
     problem.run_many(runs)
     ok = [float(v) for v, r in zip(grid, runs)
