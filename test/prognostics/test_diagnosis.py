@@ -677,8 +677,9 @@ def test_a_fault_whose_onset_is_not_identifiable_is_not_sized_by_the_flight_befo
     """A static friction of 31 x from 1.2 s on the built-in test: it shows only after ~1.46 s,
     so the onset is not identifiable and the fit from the start stands -- but from the start
     the jack would stick in the opening steps from ~20 x, which bounded the severity: 16.4 x
-    in [9.1, 29.5], the truth outside (measured). With the onset anywhere up to 1.46 s the
-    severity fits alike from ~8 to ~35 x, and the interval must say so."""
+    in [9.1, 29.5], the truth outside (measured). From 1.22 s, the last instant tried before
+    1.46 s, the severity fits within the noise's limit from 5.2 to 42 x (measured), and the
+    interval must say so."""
     sig, truth, _ = calibration.unit_signals('static_friction', 1.15, 'bit', 22222299,
                                              spread=1.5, onset=1.2)
     assert truth == pytest.approx(31.35, abs=0.01)
