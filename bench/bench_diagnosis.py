@@ -15,7 +15,7 @@ what counts is how many are given a confident wrong name (a fault named that is 
 truth; ``unexplained`` and ``healthy`` are not names).
 
     .venv/bin/python bench/bench_diagnosis.py [--units 4] [--seed 1] [--spread 1.5]
-        [--healthy-flights N | --near-limits N]
+        [--healthy-flights N | --near-limits N | --past-alarm N]
 """
 
 import argparse
@@ -28,8 +28,8 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, LEVELS, severity_at,
-                                                     unit_signals)
+from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, LEVELS, end_level,
+                                                     past_level, severity_at, unit_signals)
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, HEALTHY, UNEXPLAINED, diagnose
 from servovalve_twin.prognostics.metrics import detection_rates, interval_coverage
 
@@ -194,6 +194,79 @@ def near_limits(units: int, seed: int, spread: float, free, scens) -> None:
                   f'{j[3]}: {r["named"]} {r["severity"] if r["severity"] is not None else ""}')
 
 
+def fault_table(inside) -> list[bool]:
+    """Print the table of the units whose fault is a hypothesis (healthy first): named,
+    severity error, interval coverage, the other verdicts; return whether each named fault's
+    interval held its truth."""
+    print('\n| fault | units | named | severity error median / p90 | 90 % interval holds the '
+          'truth | verdicts when not named |')
+    print('|---|---|---|---|---|---|')
+    cover_all = []
+    for f in (HEALTHY, *DIAGNOSABLE):
+        rows = [r for r in inside if r['fault'] == f]
+        if not rows:
+            continue
+        right = [r for r in rows if r['named'] == f]
+        other = sorted({r['named'] for r in rows if r['named'] != f})
+        if f == HEALTHY:
+            print(f'| healthy | {len(rows)} | {len(right)} | - | - | {", ".join(other) or "-"} |')
+            continue
+        err = [abs(r['severity'] / r['truth'] - 1) for r in right]
+        held = [interval_coverage([r['truth']], [r['interval']])['hits'] == 1 for r in right]
+        cover_all += held
+        e = (f'{statistics.median(err):.1%} / {np.percentile(err, 90):.1%}' if err else '-')
+        print(f'| {f} | {len(rows)} | {len(right)} | {e} | {sum(held)}/{len(held)} | '
+              f'{", ".join(other) or "-"} |')
+    return cover_all
+
+
+def also_named(inside) -> None:
+    """Print how many answers name another hypothesis as also consistent (the run cannot tell
+    it from the verdict), and how many wrong names list the truth so."""
+    faulty = [r for r in inside if r['named'] in DIAGNOSABLE]
+    wrong = [r for r in faulty if r['named'] != r['fault'] and r['fault'] != HEALTHY]
+    print(f'named with another hypothesis also consistent: '
+          f'{sum(any(a in DIAGNOSABLE for a in r["also"]) for r in faulty)}/{len(faulty)}; '
+          f'wrong names {len(wrong)}, {sum(r["fault"] in r["also"] for r in wrong)} of them '
+          'with the truth also consistent')
+
+
+def past_alarm(units: int, seed: int, spread: float, free, scens) -> None:
+    """``--past-alarm``: units whose fault lies past its alarm value, up to the catalog's end
+    (severities drawn uniformly in the fault's coordinate between the two; a null bias, whose
+    catalog ends at its alarm value, has none): named, sized, and do the intervals hold?"""
+    from bench_physics import machine
+    base = seed * 6_666_661 + 31                 # never a calibration seed (those are 7e6+)
+    jobs = []
+    for scen in scens:
+        for f in DIAGNOSABLE:
+            if end_level(f) <= 1.0:
+                continue
+            for _ in range(units):
+                k = base + len(jobs)
+                jobs.append(('inside', f, past_level(f, k), scen, k, spread, free))
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        res = list(pool.map(one, jobs, chunksize=2))
+    print(f'machine: {machine()}; {len(jobs)} HD units ({units} per fault and scenario; '
+          f'scenarios {", ".join(scens)}), each fault between its alarm value and the catalog\'s '
+          f'end, nuisance x{spread:g}, noise 0.5-2x; SQ, free {",".join(free) or "none"}; '
+          f'{time.perf_counter() - t0:.0f} s')
+    for scen in scens:
+        print(f'\n{scen}:')
+        fault_table([r for r in res if r['scen'] == scen])
+    cover = fault_table(res)
+    named = sum(r['named'] == r['fault'] for r in res)
+    print(f'\nall: named right {named}/{len(res)}; 90 % intervals hold the truth in '
+          f'{sum(cover)}/{len(cover)} ({np.mean(cover):.1%})')
+    also_named(res)
+    for r in res:
+        if r['named'] != r['fault'] or not interval_coverage(
+                [r['truth']], [r['interval']])['hits']:
+            print(f'{r["scen"]}: {r["fault"]} {r["truth"]:.4g}: {r["named"]} '
+                  f'{r["severity"] if r["severity"] is not None else ""} {r["interval"]}')
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--units', type=int, default=4, help='units per fault, level, scenario')
@@ -207,6 +280,9 @@ def main() -> None:
     ap.add_argument('--near-limits', type=int, default=0, metavar='N',
                     help='instead: N units per fault and flight just beyond its stated '
                          'detection limit, how often it is named')
+    ap.add_argument('--past-alarm', type=int, default=0, metavar='N',
+                    help='instead: N units per fault and flight past its alarm value, up to '
+                         'the catalog\'s end')
     args = ap.parse_args()
     free = tuple(sorted(n for n in args.free.split(',') if n))
     scens = args.scenarios.split(',')
@@ -217,6 +293,9 @@ def main() -> None:
         return
     if args.near_limits:
         near_limits(args.near_limits, args.seed, args.spread, free, scens)
+        return
+    if args.past_alarm:
+        past_alarm(args.past_alarm, args.seed, args.spread, free, scens)
         return
     jobs, k = [], 0
     base = args.seed * 7_777_777 + 13           # never a calibration seed (those are 7e6+)
@@ -242,24 +321,8 @@ def main() -> None:
     print(f'machine: {machine()}; {len(jobs)} HD units ({args.units} per fault, level and '
           f'scenario; scenarios {", ".join(scens)}), nuisance x{args.spread:g} the documented '
           f'spread, noise 0.5-2x; SQ, free {",".join(free) or "none"}; {wall:.0f} s')
-    print('\n| fault | units | named | severity error median / p90 | 90 % interval holds the '
-          'truth | verdicts when not named |')
-    print('|---|---|---|---|---|---|')
     inside = [r for r in res if r['kind'] == 'inside']
-    cover_all = []
-    for f in (HEALTHY, *DIAGNOSABLE):
-        rows = [r for r in inside if r['fault'] == f]
-        right = [r for r in rows if r['named'] == f]
-        other = sorted({r['named'] for r in rows if r['named'] != f})
-        if f == HEALTHY:
-            print(f'| healthy | {len(rows)} | {len(right)} | - | - | {", ".join(other) or "-"} |')
-            continue
-        err = [abs(r['severity'] / r['truth'] - 1) for r in right]
-        held = [interval_coverage([r['truth']], [r['interval']])['hits'] == 1 for r in right]
-        cover_all += held
-        e = (f'{statistics.median(err):.1%} / {np.percentile(err, 90):.1%}' if err else '-')
-        print(f'| {f} | {len(rows)} | {len(right)} | {e} | {sum(held)}/{len(held)} | '
-              f'{", ".join(other) or "-"} |')
+    cover_all = fault_table(inside)
     named = sum(r['named'] == r['fault'] for r in inside)
     # a miss is allowed only below the detection limit stated for its flight
     from servovalve_twin.prognostics.excitation import detection_limits
@@ -282,6 +345,7 @@ def main() -> None:
     print(f'\nmissed: {below} below the detection limit stated for their flight (diagnose '
           f'--limits), {above} above it; named right {named}/{len(inside) - below} of the units '
           f'above their limits ({named / (len(inside) - below):.1%})')
+    also_named(inside)
     rates = detection_rates([r['fault'] != HEALTHY for r in inside],
                             [r['named'] not in (HEALTHY,) for r in inside])
     print(f'\nnamed right {named}/{len(inside)} ({named / len(inside):.1%}); 90 % intervals '

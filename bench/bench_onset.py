@@ -40,7 +40,7 @@ def one(job):
     return dict(fault=fault, q=q, at=at, truth=truth, named=named, severity=d.best.severity,
                 interval=d.best.interval, onset=onset.get('t'),
                 onset_interval=onset.get('interval'), pinned=onset.get('identifiable'),
-                seconds=time.perf_counter() - t0)
+                also=d.also_consistent_with, seconds=time.perf_counter() - t0)
 
 
 def in_catalog(fault: str, q: float) -> bool:
@@ -122,7 +122,8 @@ def main() -> None:
         below += under
         print(f'not named: {r["fault"]} q {r["q"]} from {r["at"]} s: {r["named"]} (limit for '
               f'a fault from {r["at"]} s: {lim.limit if lim.limit is None else round(lim.limit, 4)}'
-              f'; {"below" if under else "above"} it)')
+              f'; {"below" if under else "above"} it)'
+              + (f'; also consistent with {", ".join(r["also"])}' if r['also'] else ''))
     print(f'missed: {below} below the detection limit stated for a fault from its onset, '
           f'{len(misses) - below} above it')
     for r in res:

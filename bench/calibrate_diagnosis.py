@@ -24,7 +24,7 @@ from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_FILE, LEVELS,
                                                      EXTRA_UNITS, NOISE, ONSET_EXTRA,
                                                      ONSET_SCENARIOS,
-                                                     ONSET_UNITS, ONSET_WINDOW, VARY,
+                                                     ONSET_UNITS, ONSET_WINDOW, PAST_UNITS, VARY,
                                                      calibration_jobs, fit_calibration,
                                                      onset_jobs, to_g, unit_signals,
                                                      widen_needed)
@@ -151,16 +151,17 @@ def main() -> None:
         kept.update(zip(map(_key, todo), pool.map(one, todo, chunksize=2)))
         okept.update(zip(map(_key, otodo), pool.map(one_onset, otodo)))
     # (records kept before the scenario was recorded in them: it is the job's)
-    results = [{k: dict(v, scenario=job[2]) for k, v in kept[_key(job)].items()}
+    # (and the level: where the calibration fits it, up to the alarm value or past it)
+    results = [{k: dict(v, scenario=job[2], level=job[1]) for k, v in kept[_key(job)].items()}
                for job in jobs]
-    onsets = [okept[_key(job)] for job in ojobs]
+    onsets = [{k: dict(v, level=job[1]) for k, v in okept[_key(job)].items()} for job in ojobs]
     if not args.refit:
         os.makedirs(os.path.dirname(args.records) or '.', exist_ok=True)
         with open(args.records, 'w', encoding='utf-8') as fh:
             json.dump(dict(jobs=jobs, results=_keyed(results), onset_jobs=ojobs,
                            onset_results=_keyed(onsets)), fh)
     out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units,
-                          extra_units=EXTRA_UNITS,
+                          extra_units=EXTRA_UNITS, past_units=PAST_UNITS,
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
                           spread=SPREAD, onset_units=args.onset_units,
                           onset_extra=ONSET_EXTRA,
@@ -182,6 +183,9 @@ def main() -> None:
         for f, c in out[key]['faults'].items():
             print(f'  {f:24s} bias {c["bias"]:+.4f}  sigma {c["sigma"]:.4f}  named '
                   f'{c["named"]:.0%} of {c["units"]}')
+        for f, c in out[key].get('past', {}).items():
+            print(f'  past the alarm value {f:24s} slope {c["slope"]:+.4f}  sigma '
+                  f'{c["sigma"]:.4f}  k {c["k"]:.2f}  named {c["named"]:.0%} of {c["units"]}')
         for scen, fits in out[key]['by_scenario'].items():
             for f, c in fits.items():
                 shape = 'kernel      ' if c.get('points') else f'slope {c["slope"]:+.3f}'

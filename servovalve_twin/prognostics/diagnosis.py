@@ -176,9 +176,14 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     # every onset flight) set its correction, its spread and how wide against the noise's
     # alone the onset's interval is
     entry = onset_entry(cal, scenario)
+    # the single faults the run cannot tell from the verdict: within PAIR_EVIDENCE of it in
+    # the information criterion, from the start or (``onset``) from an onset of their own
+    rivals = [] if best.fault == HEALTHY or len(best.faults) > 1 else [
+        c.fault for c in candidates[1:] if len(c.faults) == 1
+        and c.score - best.score < PAIR_EVIDENCE and _detectable(c, cal=cal, scenario=scenario)]
     onset_fit = fit_onset(problem, candidates, n, n_eff,
                           lambda f, s: _unbiased(cal, f, s, entry),
-                          widen=onset_widen(cal, entry)) if onset else None
+                          widen=onset_widen(cal, entry), rivals=rivals) if onset else None
     onset_profile = onset_fit.pop('profile', None) if onset_fit else None
     # a fault that may have begun any time up to the onset interval's end: its severity is
     # what fits from the start or from that late (:func:`.onset.severity_range`), and where
@@ -204,7 +209,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
                   evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
                   fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit,
-                  onset_profile=onset_profile)
+                  onset_profile=onset_profile,
+                  rivals=sorted(set(rivals) - {best.fault}))
     if second is not None:
         d.verdict = UNEXPLAINED
         d.warnings.append(f'unexplained: two faults at once ({second.fault}) fit better than '
@@ -359,7 +365,7 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
     where SQ's nominal run is 5.4 residual scales from HD's against 0.8-1 on the calibration
     flights -- made every healthy unit 'unexplained' though no fault improved on healthy: the
     misfit was the model's, which this flight shows as it shows any fault's."""
-    from .calibration import gof_p_value
+    from .calibration import gof_p_value, gof_reference
     if cal is None:
         d.warnings.append(f'no model-form calibration for {d.model} with free '
                           f'{",".join(sorted(free)) or "none"}: the interval counts the '
@@ -367,8 +373,11 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
         return
     d.calibration = cal
     d.calibration_scenario = scenario if scenario in (cal.get('by_scenario') or {}) else None
-    d.p_value = gof_p_value(cal, d.fit_rms)
-    d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(cal['rms'], REFERENCE_QUANTILE))
+    # an answer past its fault's alarm value is tested against the right fits past it
+    past = len(d.best.faults) == 1 and past_alarm(d.best.fault, d.best.severity)
+    d.p_value = gof_p_value(cal, d.fit_rms, past)
+    d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(gof_reference(cal, past),
+                                                         REFERENCE_QUANTILE))
     d.flight_model_form_rms = flight_model_form_rms(problem)
     own = UNEXPLAINED_FACTOR * (d.flight_model_form_rms or 0.0)
     if own > d.fit_limit:
@@ -397,14 +406,16 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
     best.severity = sevs[0] if len(sevs) == 1 else sevs
     best.interval = ivs[0] if len(ivs) == 1 else ivs
     d.confidence = 0.9
-    # the calibration's units fly severities up to each fault's alarm value: an interval
+    # a calibration whose units fly severities up to each fault's alarm value only (one
+    # built before it flew units past it, or a fault it has too few of there): an interval
     # wholly past it is extrapolated (at 1.15 of the way, 12 of 18 onset answers' intervals
-    # held the truth and a 22.5 x dynamic friction was named static friction: measured)
+    # held the truth: measured)
     from .calibration import to_g
     for f, iv in zip(best.faults, ivs):
         spec = FAULTS[f]
         way = 1.0 if spec.demo > spec.healthy else -1.0
-        if min(way * to_g(f, iv[0]), way * to_g(f, iv[1])) > way * to_g(f, spec.demo):
+        if f not in (cal.get('past') or {}) and min(
+                way * to_g(f, iv[0]), way * to_g(f, iv[1])) > way * to_g(f, spec.demo):
             d.warnings.append(f'{f} past its alarm value ({spec.demo:g}): the model-form '
                               'calibration flies severities up to it, so this answer is '
                               'extrapolated and its interval may be too narrow')
@@ -443,16 +454,20 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
     spread (the fit's 95 % interval read as a standard error), and that spread as a relative
     standard deviation of the distance from healthy (what :func:`..prognosis.prognose` takes
     as ``model_sigma``). Unchanged, with a spread of 0, for a fault the calibration lacks.
-    ``scenario``: the calibration scenario the flight is (its own entry, where there is one)."""
-    from .calibration import Z90, bias_at, fault_calibration, from_g, spread_of, to_g
-    c = fault_calibration(cal, fault, scenario)
+    ``scenario``: the calibration scenario the flight is (its own entry, where there is one).
+    A fit past the fault's alarm value is corrected further, and its spread widened, by the
+    calibration's units past it (:func:`.calibration.past_correction`)."""
+    from .calibration import (Z90, bias_at, fault_calibration, from_g, past_correction,
+                              spread_of, to_g)
     spec = FAULTS[fault]
+    c = fault_calibration(cal, fault, scenario)
     lo, hi = interval95
     if c is None:
         return severity, (lo, hi), 0.0
     se = (to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96)
     g = to_g(fault, severity)
-    g = g - bias_at(c, g)
+    further, c = past_correction(cal, fault, g, c)
+    g = g - bias_at(c, g) - further
     half = Z90 * spread_of(c, se)
     est = min(max(from_g(fault, g), spec.lo), spec.hi)
     iv = (min(max(from_g(fault, g - half), spec.lo), spec.hi),
@@ -484,6 +499,12 @@ def _one_sided(fault: str, interval: tuple[float, float]) -> str:
         return ''
     near = lo if up else hi
     return f'{fault} {">=" if up else "<="} {near:.4g}'
+
+
+def past_alarm(fault: str, severity: float) -> bool:
+    """``severity`` lies past the fault's alarm value (farther from healthy)."""
+    from .calibration import to_g
+    return to_g(fault, severity) / to_g(fault, FAULTS[fault].demo) > 1.0
 
 
 def sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:

@@ -103,6 +103,9 @@ class Diagnosis:
     #: per fault of the verdict: '' where the data pin its severity, else the one-sided bound
     #: they support ('static_friction >= 12.3': the likelihood is flat beyond)
     bounds: list[str] = dataclasses.field(default_factory=list)
+    #: the hypotheses that fit this run as well as the verdict (within the evidence a pair
+    #: needs, from the start or from an onset): the run cannot tell them from it
+    rivals: list[str] = dataclasses.field(default_factory=list)
 
     @property
     def identifiable(self) -> bool:
@@ -110,10 +113,12 @@ class Diagnosis:
 
     @property
     def also_consistent_with(self) -> list[str]:
-        """Catalog faults outside the hypotheses that the verdict cannot be told from."""
+        """Catalog faults the verdict cannot be told from: those outside the hypotheses that
+        SQ confuses with it, and the hypotheses that fit this run as well (:attr:`rivals`)."""
         if self.verdict:
             return []
-        return sorted({o for f in self.best.faults for o in CONFUSABLE.get(f, ())})
+        return sorted({o for f in self.best.faults for o in CONFUSABLE.get(f, ())}
+                      | set(self.rivals))
 
     @property
     def best(self) -> Candidate:

@@ -73,6 +73,10 @@ def test_the_packaged_calibration_covers_every_hypothesis():
         assert cal is not None and len(cal['rms']) > 100
         missing = [f for f in DIAGNOSABLE if f not in cal['faults']]
         assert not missing, missing
+        # past the alarm value: every fault whose catalog goes past it
+        assert sorted(cal['past']) == sorted(
+            f for f in DIAGNOSABLE if calibration.end_level(f) > 1.0)
+        assert len(cal['past_rms']) > len(cal['rms'])
 
 
 @pytest.mark.slow
@@ -227,16 +231,94 @@ def test_the_extra_units_leave_the_first_ones_and_spread_between_the_levels():
     jobs = calibration.calibration_jobs(2, 7)
     per_round = 1 + len(DIAGNOSABLE) * len(LEVELS)
     first = 2 * len(calibration.CAL_SCENARIOS) * per_round
-    assert len(jobs) == first + sum(calibration.EXTRA_UNITS.values()) * per_round
+    extra_end = first + sum(calibration.EXTRA_UNITS.values()) * per_round
+    assert all(j[1] <= 1.0 for j in jobs[:extra_end]) and jobs[extra_end][1] > 1.0
     # the first units: the levels, seeds in sequence, whatever the extra ones are
     assert [j[3] for j in jobs] == [7 * 1_000_003 + k for k in range(len(jobs))]
     assert {j[1] for j in jobs[:first] if j[0]} == set(LEVELS)
-    extra = [j for j in jobs[first:] if j[0]]
+    extra = [j for j in jobs[first:extra_end] if j[0]]
     assert all(calibration.EXTRA_RANGE[j[2]][0] <= j[1] <= calibration.EXTRA_RANGE[j[2]][1]
                for j in extra)
     assert len({j[1] for j in extra}) > len(extra) // 2
     # the paper flight's extra units reach below the verdict floor
     assert min(j[1] for j in extra if j[2] == 'paper') < 0.2
+
+
+def test_units_past_the_alarm_value_come_last_and_reach_the_catalogs_end():
+    """The catalog's end in fractions of the way to the alarm value (hand values: a leak's
+    100 x against 10 x is ln 100 / ln 10 = 2; a supply loss's 0.9 against 0.3 is 3; a null
+    bias ends at its alarm value); the units past it are appended to both sets (the units
+    before keep their seeds), each fault whose catalog goes past its alarm value on every
+    calibration flight (on every onset flight), between the alarm value and the end."""
+    assert calibration.end_level('leakage_growth') == pytest.approx(2.0)
+    assert calibration.end_level('supply_loss') == pytest.approx(3.0)
+    assert calibration.end_level('null_bias') == pytest.approx(1.0)
+    assert calibration.end_level('static_friction') == pytest.approx(math.log(50) / math.log(20))
+    beyond = [f for f in DIAGNOSABLE if calibration.end_level(f) > 1.0]
+    assert 'null_bias' not in beyond and len(beyond) == len(DIAGNOSABLE) - 1
+    for jobs, flights in ((calibration.calibration_jobs(2, 7), calibration.CAL_SCENARIOS),
+                          (calibration.onset_jobs(2, 7), calibration.ONSET_SCENARIOS)):
+        n = calibration.PAST_UNITS * len(flights) * len(beyond)
+        past, before = jobs[-n:], jobs[:-n]
+        assert all(j[1] <= 1.0 for j in before)
+        assert sorted({j[2] for j in past}) == sorted(flights)
+        for f in beyond:
+            qs = [j[1] for j in past if j[0] == f]
+            assert len(qs) == calibration.PAST_UNITS * len(flights)
+            assert all(1.0 <= q < calibration.end_level(f) for q in qs)
+            assert all(FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi for q in qs)
+
+
+def _leak(rng, g_truth: float, err: float, **kw) -> dict:
+    return dict(fault='leakage_growth', truth=math.exp(g_truth), named='leakage_growth',
+                estimate=math.exp(g_truth + err + rng.normal(0.0, 0.003)), se=0.0, rms=1.0,
+                **kw)
+
+
+def test_the_error_past_the_alarm_value_is_a_line_from_it_and_moves_nothing_else():
+    """Units up to a leak's alarm value (10 x) read -0.05 in g; those past it a further
+    -0.2 per unit of g their estimate lies past it. The entry ``past`` has that slope, from
+    the correction the entries up to the alarm value make, through 0 at the alarm value, and a
+    spread of the noise's size; the other entries are those of the units up to the alarm value
+    alone. An estimate short of the alarm value is not corrected further; past it by 0.5 in g
+    it is, by -0.1, with the larger of the two spreads; either side of the alarm value the
+    answer is continuous."""
+    from servovalve_twin.prognostics.diagnosis import model_form_estimate
+    rng = np.random.default_rng(11)
+    ga = math.log(10.0)
+    rec = [_leak(rng, rng.uniform(0.5, ga), -0.05, level=0.5) for _ in range(60)]
+    past = []
+    for _ in range(30):
+        gt = rng.uniform(ga, 2 * ga)
+        # g_est - g_truth = -0.05 - 0.2 (g_est - ga), solved for g_est
+        ge = (gt - 0.05 + 0.2 * ga) / 1.2
+        past.append(_leak(rng, gt, ge - gt, level=1.5))
+    cal = fit_calibration(rec + past)
+    p = cal['past']['leakage_growth']
+    assert p['slope'] == pytest.approx(-0.2, abs=0.01)
+    assert p['sigma'] < 0.01 and p['units'] == 30
+    plain = fit_calibration(rec)
+    assert cal['faults'] == plain['faults'] and 'past' not in plain
+    c = cal['faults']['leakage_growth']
+    assert calibration.past_correction(cal, 'leakage_growth', ga - 0.1, c) == (0.0, c)
+    further, wide = calibration.past_correction(cal, 'leakage_growth', ga + 0.5, c)
+    assert further == pytest.approx(-0.1, abs=0.005)
+    assert wide['sigma'] == max(c['sigma'], p['sigma'])
+    below, above = (model_form_estimate(cal, 'leakage_growth', s, (s - 0.01, s + 0.01))[0]
+                    for s in (10.0 - 1e-6, 10.0 + 1e-6))
+    assert above == pytest.approx(below, rel=1e-5)
+    far = model_form_estimate(cal, 'leakage_growth', 10.0 * math.exp(0.5), (16.0, 17.0))[0]
+    assert math.log(far) == pytest.approx(ga + 0.5 + 0.05 + 0.1, abs=0.01)
+
+
+def test_an_answer_past_the_alarm_value_is_tested_against_every_right_fit():
+    """The goodness-of-fit reference of an answer past its alarm value holds the right fits
+    past it with those up to it; up to it, those alone (hand count: 2.5 has 2 of 4 fits as
+    bad or worse, p = 3/5; 0 of 2, p = 1/3)."""
+    cal = {'rms': [1.0, 2.0], 'past_rms': [1.0, 2.0, 3.0, 4.0]}
+    assert gof_p_value(cal, 2.5, past=True) == pytest.approx(3 / 5)
+    assert gof_p_value(cal, 2.5) == pytest.approx(1 / 3)
+    assert gof_p_value({'rms': [1.0, 2.0]}, 2.5, past=True) == pytest.approx(1 / 3)
 
 
 def test_the_onset_entries_come_from_refitted_onset_units_and_nothing_else():
@@ -314,8 +396,11 @@ def test_the_factor_an_onset_interval_needs_against_a_hand_count():
 def test_onset_units_draw_severities_and_onsets_of_their_own():
     """The onset units: every diagnosable fault per round and flight (more on the built-in
     test), severities between the levels, onsets inside the window of each flight (the
-    built-in test is 2 s), seeds apart from the calibration set's."""
-    jobs = calibration.onset_jobs(3, 7)
+    built-in test is 2 s), seeds apart from the calibration set's; then those past the alarm
+    value (their own test)."""
+    everyone = calibration.onset_jobs(3, 7)
+    jobs = [j for j in everyone if j[1] <= 1.0]
+    assert everyone[:len(jobs)] == jobs
     assert len(jobs) == sum(3 + calibration.ONSET_EXTRA.get(scen, 0)
                             for scen in calibration.ONSET_SCENARIOS) * len(DIAGNOSABLE)
     assert [j[0] for j in jobs[:len(DIAGNOSABLE)]] == list(DIAGNOSABLE)
@@ -327,14 +412,15 @@ def test_onset_units_draw_severities_and_onsets_of_their_own():
         assert all(LEVELS[0] <= j[1] <= 1.0 and lo * duration <= j[4] <= hi * duration
                    for j in some)
     # the extra units come after the first ones, whose seeds do not depend on them
-    assert [j[3] for j in jobs] == [7 * 1_000_003 + 500_000 + k for k in range(len(jobs))]
+    assert [j[3] for j in everyone] == [7 * 1_000_003 + 500_000 + k
+                                        for k in range(len(everyone))]
     assert [j[2] for j in jobs] == sorted((j[2] for j in jobs),
                                           key=calibration.ONSET_SCENARIOS.index)
     assert max(j[4] for j in jobs) > 1.0                   # the built-in test's own window
     assert len({j[4] for j in jobs}) == len(jobs)
     seeds = {j[3] for j in calibration.calibration_jobs(4, 7)}
-    assert not seeds & {j[3] for j in jobs}
-    assert len({j[3] for j in jobs}) == len(jobs)
+    assert not seeds & {j[3] for j in everyone}
+    assert len({j[3] for j in everyone}) == len(everyone)
 
 
 def test_a_bag_is_matched_to_its_calibration_scenario_by_its_inputs():
