@@ -185,7 +185,8 @@ def main() -> None:
                   f'{c["named"]:.0%} of {c["units"]}')
         for f, c in out[key].get('past', {}).items():
             print(f'  past the alarm value {f:24s} slope {c["slope"]:+.4f}  sigma '
-                  f'{c["sigma"]:.4f}  k {c["k"]:.2f}  named {c["named"]:.0%} of {c["units"]}')
+                  f'{c["sigma"]:.4f}  named {c["named"]:.0%} of {c["units"]} (scored '
+                  f'{c["scored"]})')
         for scen, fits in out[key]['by_scenario'].items():
             for f, c in fits.items():
                 shape = 'kernel      ' if c.get('points') else f'slope {c["slope"]:+.3f}'

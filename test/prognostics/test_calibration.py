@@ -281,8 +281,9 @@ def test_the_error_past_the_alarm_value_is_a_line_from_it_and_moves_nothing_else
     the correction the entries up to the alarm value make, through 0 at the alarm value, and a
     spread of the noise's size; the other entries are those of the units up to the alarm value
     alone. An estimate short of the alarm value is not corrected further; past it by 0.5 in g
-    it is, by -0.1, with the larger of the two spreads; either side of the alarm value the
-    answer is continuous."""
+    it is, by -0.1, its spread the two entries' added; just past it, its interval straddling
+    the alarm value, only the entry's own; either side of the alarm value the estimate is
+    continuous."""
     from servovalve_twin.prognostics.diagnosis import model_form_estimate
     rng = np.random.default_rng(11)
     ga = math.log(10.0)
@@ -300,10 +301,12 @@ def test_the_error_past_the_alarm_value_is_a_line_from_it_and_moves_nothing_else
     plain = fit_calibration(rec)
     assert cal['faults'] == plain['faults'] and 'past' not in plain
     c = cal['faults']['leakage_growth']
-    assert calibration.past_correction(cal, 'leakage_growth', ga - 0.1, c) == (0.0, c)
-    further, wide = calibration.past_correction(cal, 'leakage_growth', ga + 0.5, c)
+    assert calibration.past_correction(cal, 'leakage_growth', ga - 0.1, 0.0, c) == (0.0, c)
+    further, wide = calibration.past_correction(cal, 'leakage_growth', ga + 0.5, 0.0, c)
     assert further == pytest.approx(-0.1, abs=0.005)
-    assert wide['sigma'] == max(c['sigma'], p['sigma'])
+    assert wide['sigma'] == pytest.approx(math.hypot(c['sigma'], p['sigma']))
+    further, own = calibration.past_correction(cal, 'leakage_growth', ga + 0.01, 0.05, c)
+    assert further == pytest.approx(-0.002, abs=1e-4) and own is c
     below, above = (model_form_estimate(cal, 'leakage_growth', s, (s - 0.01, s + 0.01))[0]
                     for s in (10.0 - 1e-6, 10.0 + 1e-6))
     assert above == pytest.approx(below, rel=1e-5)
