@@ -562,21 +562,28 @@ def test_close_onset_hypotheses_are_each_refitted_with_the_nuisance():
 
 def test_a_severity_at_the_catalogs_end_keeps_that_end_in_its_interval():
     """model_form_estimate against a hand computation: null bias (g = s / 5 mA), a bias of
-    -0.02 in g and a spread of 0.01. Fitted -4.9 mA with a 95 % interval of +-0.1 mA: g -0.98,
-    corrected -0.96; se 0.04 / 3.92; half-width 1.6449 * hypot(se, 0.01) -- both ends from
-    that. Fitted at the catalog's end, -5 mA (95 % interval [-5, -4.9]): corrected -0.98, the
-    same half-width of hypot(0.02 / 3.92, 0.01), and the interval runs on to -5 mA, where the
-    fit was stopped (it would have read beyond). The same at +5 mA; not at healthy's end of a
-    multiplier (a leak fitted at 1 x is not censored)."""
+    -0.02 in g and a spread of 0.01. Fitted -4.9 mA with a 95 % interval of +-0.05 mA: g
+    -0.98, corrected -0.96; se 0.02 / 3.92; half-width 1.6449 * hypot(se, 0.01) -- both ends
+    from that. Fitted at the catalog's end, -5 mA (95 % interval [-5, -4.9]): corrected -0.98,
+    the same half-width, and the interval runs on to -5 mA, where the fit was stopped (it
+    would have read beyond); so it does for a fit inside the range whose own interval runs to
+    the end (the one-sided answer). The same at +5 mA; not at healthy's end of a multiplier (a
+    leak fitted at 1 x is not censored)."""
     from servovalve_twin.prognostics.diagnosis import model_form_estimate
     entry = dict(bias=-0.02, slope=0.0, sigma=0.01, k=1.0, units=30)
-    cal = dict(faults=dict(null_bias=entry, leakage_growth=entry), by_scenario={})
-    est, (lo, hi), _ = model_form_estimate(cal, 'null_bias', -4.9e-3, (-5.0e-3, -4.8e-3))
-    half = 1.6449 * math.hypot(0.04 / 3.92, 0.01)
+    cal = dict(faults=dict(null_bias=entry, leakage_growth=entry, static_friction=entry),
+               by_scenario={})
+    est, (lo, hi), _ = model_form_estimate(cal, 'null_bias', -4.9e-3, (-4.95e-3, -4.85e-3))
+    half = 1.6449 * math.hypot(0.02 / 3.92, 0.01)
     assert est == pytest.approx(-0.96 * 5e-3)
     assert (lo, hi) == pytest.approx(((-0.96 - half) * 5e-3, (-0.96 + half) * 5e-3))
+    # the same fit with its own interval to the end: one-sided, the end kept
+    est, (lo, hi), _ = model_form_estimate(cal, 'null_bias', -4.9e-3, (-5.0e-3, -4.8e-3))
+    assert lo == -5.0e-3 and hi == pytest.approx(
+        (-0.96 + 1.6449 * math.hypot(0.04 / 3.92, 0.01)) * 5e-3)
+    est, (lo, hi), _ = model_form_estimate(cal, 'static_friction', 16.5, (8.3, 50.0))
+    assert est == pytest.approx(16.5 * math.exp(0.02)) and hi == 50.0 and lo < 16.5
     est, (lo, hi), _ = model_form_estimate(cal, 'null_bias', -5.0e-3, (-5.0e-3, -4.9e-3))
-    half = 1.6449 * math.hypot(0.02 / 3.92, 0.01)
     assert est == pytest.approx(-0.98 * 5e-3) and lo == -5.0e-3
     assert hi == pytest.approx((-0.98 + half) * 5e-3)
     up = dict(faults=dict(null_bias=dict(entry, bias=0.02)), by_scenario={})
