@@ -184,8 +184,8 @@ def main() -> None:
             print(f'  {f:24s} bias {c["bias"]:+.4f}  sigma {c["sigma"]:.4f}  named '
                   f'{c["named"]:.0%} of {c["units"]}')
         for f, c in out[key].get('past', {}).items():
-            print(f'  past the alarm value {f:24s} slope {c["slope"]:+.4f}  sigma '
-                  f'{c["sigma"]:.4f}  named {c["named"]:.0%} of {c["units"]} (scored '
+            print(f'  past the alarm value {f:24s} slope {c["slope"]:+.4f}  rate '
+                  f'{c["rate"]:.4f}  named {c["named"]:.0%} of {c["units"]} (scored '
                   f'{c["scored"]})')
         for scen, fits in out[key]['by_scenario'].items():
             for f, c in fits.items():

@@ -88,10 +88,13 @@ EXTRA_UNITS = {'bit': 5, 'paper': 3}
 #: limit of 1.585 x (read 1.44 x for 1.7 x: measured)
 EXTRA_RANGE = {'bit': (LEVELS[0], 1.0), 'paper': (0.15, 0.6)}
 #: units per fault and calibration scenario flown past the alarm value, at severities drawn
-#: between it and the catalog's end (:func:`end_level`): a diagnosis answers over the whole
-#: catalog, and calibrated up to the alarm value only, past it the intervals held 37 of 44
-#: units from the start (a gain loss of 0.72-0.86 read 2 % high on unseen steps, 0/4) and
-#: 12 of 18 onset answers (measured)
+#: between it and the catalog's end (:func:`end_level`), from the start: a diagnosis answers
+#: over the whole catalog, and calibrated up to the alarm value only, past it the intervals
+#: held 37 of 44 units from the start (a gain loss of 0.72-0.86 read 2 % high on unseen steps,
+#: 0/4) and 12 of 18 onset answers (measured). (Onset units past it, 2 per fault and onset
+#: flight, were flown and left out: single ones read just past the alarm value but far short
+#: of their truth set the spread's growth for every answer; an onset answer takes its onset
+#: entry's wider spread as it is.)
 PAST_UNITS = 2
 #: units per fault and onset flight flown with the fault beginning mid-flight (an onset drawn
 #: in :data:`ONSET_WINDOW` of the flight, a severity between the levels), diagnosed with
@@ -232,16 +235,6 @@ def onset_jobs(units: int, seed: int) -> list[tuple]:
                 q = round(float(rng.uniform(LEVELS[0], 1.0)), 4)
                 at = rng.uniform(ONSET_WINDOW[0] * duration, ONSET_WINDOW[1] * duration)
                 jobs.append((fault, q, scen, k, round(float(at), 4)))
-    # past the alarm value (appended last: the units before keep their seeds)
-    for scen in ONSET_SCENARIOS:
-        duration = load_scenario(CAL_SCENARIOS[scen]).duration
-        for _ in range(PAST_UNITS):
-            for fault in (f for f in DIAGNOSABLE if end_level(f) > 1.0):
-                k = seed * 1_000_003 + 500_000 + len(jobs)
-                rng = np.random.default_rng(k)
-                rng.uniform()                      # (the draw past_level makes)
-                at = rng.uniform(ONSET_WINDOW[0] * duration, ONSET_WINDOW[1] * duration)
-                jobs.append((fault, past_level(fault, k), scen, k, round(float(at), 4)))
     return jobs
 
 
@@ -417,8 +410,7 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     value (a leak on the paper flight: a spread of 0.004 in ``g`` up to it, 0.094 with the
     units past it folded in: measured), and one spread for both made every answer's interval
     as wide as the worst one's."""
-    past_records = [r for r in (*records, *onset_records) if r.get('level', 0.0) > 1.0
-                    and (r.get('refitted') or 'refitted' not in r)]
+    past_records = [r for r in records if r.get('level', 0.0) > 1.0]
     records = [r for r in records if r.get('level', 0.0) <= 1.0]
     onset_records = [r for r in onset_records if r.get('level', 0.0) <= 1.0]
     out: dict[str, Any] = {'faults': _fit_faults(records, shape='constant')}
@@ -455,52 +447,45 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
         # the right fits past the alarm value fit worse (a torque-motor gain loss of 0.78 on
         # the built-in test: RMS 3.3-3.5 where those up to it stay within 3.0): an answer
         # past it is tested against them all (:func:`gof_reference`)
-        out['past_rms'] = sorted(out['rms'] + [
-            float(r['rms']) for r in past_records
-            if 'refitted' not in r and r.get('rms') is not None])
+        out['past_rms'] = sorted(out['rms'] + [float(r['rms']) for r in past_records
+                                               if r.get('rms') is not None])
     return out
 
 
 def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any]
               ) -> dict[str, Any]:
     """The entries ``past`` of a calibration ``cal`` (its entries up to the alarm value
-    fitted), from ``records`` of units past the alarm value: per fault, over the units whose
-    estimate lies past it by ``x`` (in ``g``; one short of it is answered by the entries up to
-    it), each unit's error after the correction ``cal`` would make (its flight's entry, an
-    onset unit's onset entry); ``slope``: the least-squares line through 0 at the alarm value
-    -- the correction stays continuous there, and grows with the distance past it (SQ reads a
-    leak of 20 x on the paper flight 9 % low, of 60 x 23 %: measured) -- and ``sigma``: the
-    spread added to the entry's of the answers whose interval lies wholly past the alarm value
-    (:func:`past_correction`), at the split-conformal rank of those units' deviations from the
-    line (leave-one-out). Added as soon as the estimate passed the alarm value, it widened the
-    answers at the alarm value as much as those at the catalog's end (the bench's intervals
-    held 140 of 146 for a stated 90 %, a gain loss of 0.71 answered [0.65, 0.78]); grown in
-    proportion to how far past the alarm value the estimate or its interval lies, it was set by
-    single onset units read just past the alarm value but far short of their truth (a factor
-    of 7.5 per unit of ``g``: measured). Pooled over the flights (two units per fault and
-    flight)."""
+    fitted), from ``records`` of units past the alarm value diagnosed from the start: per
+    fault, over the units whose estimate lies past it, by ``x`` in ``g`` (one short of it is
+    answered by the entries up to it), each unit's error after the correction its flight's
+    entry would make; ``slope``: the least-squares line through 0 at the alarm value, and
+    ``rate``: how the spread grows with ``x``, ``sqrt(sigma^2 + (rate*x)^2)`` with ``sigma``
+    the flight's entry's, at the split-conformal rank of the deviations from the line
+    (leave-one-out) -- both continuous at the alarm value, and growing past it (SQ reads a
+    leak of 20 x on the paper flight 9 % low, of 60 x 23 %: measured). A spread that stepped
+    up at the alarm value, or where the interval first lies wholly past it, widened the
+    answers there as much as those at the catalog's end (the bench's intervals held 140 of
+    146 for a stated 90 %, a gain loss of 0.71 answered [0.65, 0.78]); fitted with the onset
+    units past the alarm value too, single ones read just past it but far short of their
+    truth set the rate (7.5 per unit of ``g``; their answers carry their onset entry's wider
+    spread). Pooled over the flights (two units per fault and flight)."""
     out = {}
     for fault in sorted({r['fault'] for r in records if r['fault']}):
         gd = to_g(fault, FAULTS[fault].demo)
-        way = math.copysign(1.0, gd)
         rows = []
         for r in records:
-            if r['fault'] != fault or r.get('estimate') is None:
+            c = fault_calibration(cal, r['fault'], r.get('scenario')) if (
+                r['fault'] == fault and r.get('estimate') is not None) else None
+            if c is None:
                 continue
-            scen = r.get('scenario')
-            if r.get('refitted'):
-                own = f'onset:{scen}'
-                scen = own if own in (cal.get('by_scenario') or {}) else 'onset'
-            c = fault_calibration(cal, fault, scen)
             g = to_g(fault, r['estimate'])
-            if c is None or way * (g - gd) <= 0:
-                continue
-            gc = g - bias_at(c, g)
-            rows.append((way * (g - gd), gc - to_g(fault, r['truth']), way * (gc - gd),
-                         spread_of(c, r['se']), r['se'] <= SE_PINNED, r['named'] == fault))
+            x = (g - gd) * math.copysign(1.0, gd)
+            if x > 0:
+                rows.append((x, g - bias_at(c, g) - to_g(fault, r['truth']),
+                             spread_of(c, r['se']), r['se'] <= SE_PINNED, r['named'] == fault))
         if sum(row[-1] for row in rows) < SCENARIO_UNITS:
             continue
-        x, dev, past, spread, pinned, named = (np.array(v) for v in zip(*rows))
+        x, dev, spread, pinned, named = (np.array(v) for v in zip(*rows))
         if (pinned & named).sum() < 3:
             pinned[:] = True
 
@@ -508,34 +493,28 @@ def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any]
             return float(np.sum(x[keep] * dev[keep]) / np.sum(x[keep] ** 2))
 
         slope = slope_of(pinned)
+        sc = np.flatnonzero(pinned & named)
         loo = np.array([dev[i] - slope_of(pinned & (np.arange(len(x)) != i)) * x[i]
-                        for i in range(len(x))])
-        sc = np.flatnonzero(pinned & named & (past - way * slope * x - Z90 * spread > 0))
-        sigma = _conformal(loo[sc], lambda v: Z90 * np.sqrt(spread[sc] ** 2 + v ** 2), 0.0,
-                           1.0) if len(sc) else 0.0
-        out[fault] = dict(slope=slope, sigma=sigma, units=int(named.sum()), scored=len(sc),
+                        for i in sc])
+        rate = _conformal(loo, lambda v: Z90 * np.sqrt(spread[sc] ** 2 + (v * x[sc]) ** 2),
+                          0.0, 1.0)
+        out[fault] = dict(slope=slope, rate=rate, units=int(named.sum()), scored=len(sc),
                           named=float(named.mean()))
     return out
 
 
-def past_correction(cal: Mapping[str, Any], fault: str, g: float, se: float,
+def past_correction(cal: Mapping[str, Any], fault: str, g: float,
                     c: Mapping[str, Any]) -> tuple[float, Mapping[str, Any]]:
-    """For an estimate at ``g`` (its fit's standard error ``se``) whose entry up to the alarm
-    value is ``c``: the further bias past the alarm value (``slope`` times how far past it
-    the estimate lies: continuous at the alarm value; 0 short of it, or without a ``past``
-    entry of the fault), and the entry whose spread the answer takes: ``c``'s, with the
-    ``past`` entry's spread added where the interval ``c`` gives lies wholly past the alarm
-    value (an answer whose interval straddles it is one the units up to it describe)."""
+    """For an estimate at ``g`` whose entry up to the alarm value is ``c``: the further bias
+    past the alarm value, ``slope`` times how far past it the estimate lies (0 short of it, or
+    without a ``past`` entry of the fault), and the entry whose spread the answer takes,
+    ``c``'s grown by the ``past`` entry's ``rate`` times that distance (in quadrature)."""
     p = (cal.get('past') or {}).get(fault)
     gd = to_g(fault, FAULTS[fault].demo)
-    way = math.copysign(1.0, gd)
-    x = way * (g - gd)
+    x = (g - gd) * math.copysign(1.0, gd)
     if p is None or x <= 0:
         return 0.0, c
-    further = p['slope'] * x
-    if way * (g - bias_at(c, g) - further - gd) - Z90 * spread_of(c, se) <= 0:
-        return further, c
-    return further, dict(c, sigma=math.hypot(c['sigma'], p['sigma']))
+    return p['slope'] * x, dict(c, sigma=math.hypot(c['sigma'], p['rate'] * x))
 
 
 def sensor_warnings(sensors: Any, control_period: float) -> list[str]:

@@ -663,27 +663,32 @@ def test_a_fault_that_fits_as_well_from_the_start_is_not_called_present_from_it(
 
 @pytest.mark.slow
 def test_an_answer_past_the_alarm_value_is_calibrated_there(monkeypatch):
-    """A supply loss of 0.345 (1.15 of the way to its alarm value, 0.3) on the paper flight:
-    the calibration's units past the alarm value widen its interval to hold the truth --
-    without them (a calibration flown up to the alarm value only) it missed it, [0.3346,
-    0.3449], and the answer had to say it was extrapolated (measured). A leak fitted short of
-    its alarm value (10 x, read 9.57) is answered alike either way."""
+    """Past the alarm value SQ reads a leak lower the larger it is: a leak of 31.6 x (1.5 of
+    the way to its alarm value, 10 x) on the paper flight fits at 27.1 x, and a supply loss of
+    0.6 (twice its alarm value, 0.3) at 0.588. The calibration's units past the alarm value
+    correct and widen them to hold the truth; without those units (a calibration flown up to
+    the alarm value only) each interval missed it -- [25.4, 31.4] and [0.590, 0.599] -- and
+    the answer had to say it was extrapolated (measured). A leak fitted short of its alarm
+    value (10 x, read 9.57) is answered alike either way."""
     def answer(fault, q):
         sig, truth, _ = calibration.unit_signals(fault, q, 'paper', 5, spread=1.5)
         d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'),
                      scenario='paper')
-        assert d.best.fault == fault
+        assert d.best.fault == fault and not d.verdict
         return truth, d.best.interval, any(
             w.startswith(f'{fault} past its alarm value') for w in d.warnings)
 
-    truth, (lo, hi), warned = answer('supply_loss', 1.15)
-    assert lo <= truth <= hi and not warned
+    past = [('leakage_growth', 1.5), ('supply_loss', 2.0)]
+    for fault, q in past:
+        truth, (lo, hi), warned = answer(fault, q)
+        assert lo <= truth <= hi and not warned
     leak = answer('leakage_growth', 1.0)
     full = calibration.calibration_for
     monkeypatch.setattr(calibration, 'calibration_for', lambda model, free: {
         k: v for k, v in full(model, free).items() if k not in ('past', 'past_rms')})
-    truth, (lo, hi), warned = answer('supply_loss', 1.15)
-    assert hi < truth and warned
+    for fault, q in past:
+        truth, (lo, hi), warned = answer(fault, q)
+        assert hi < truth and warned
     assert answer('leakage_growth', 1.0) == leak
 
 
