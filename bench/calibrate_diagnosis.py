@@ -183,10 +183,10 @@ def main() -> None:
         for f, c in out[key]['faults'].items():
             print(f'  {f:24s} bias {c["bias"]:+.4f}  sigma {c["sigma"]:.4f}  named '
                   f'{c["named"]:.0%} of {c["units"]}')
-        for f, c in out[key].get('past', {}).items():
-            print(f'  past the alarm value {f:24s} slope {c["slope"]:+.4f}  rate '
-                  f'{c["rate"]:.4f}  named {c["named"]:.0%} of {c["units"]} (scored '
-                  f'{c["scored"]})')
+        for entry in ('past', 'past_onset'):
+            for f, c in out[key].get(entry, {}).items():
+                print(f'  {entry:10s} {f:24s} slope {c["slope"]:+.4f}  rate {c["rate"]:.4f}  '
+                      f'named {c["named"]:.0%} of {c["units"]} (scored {c["scored"]})')
         for scen, fits in out[key]['by_scenario'].items():
             for f, c in fits.items():
                 shape = 'kernel      ' if c.get('points') else f'slope {c["slope"]:+.3f}'

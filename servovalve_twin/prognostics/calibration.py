@@ -87,14 +87,11 @@ EXTRA_UNITS = {'bit': 5, 'paper': 3}
 #: extrapolated the bias there, and leaks up to 1.65 x were called healthy against a stated
 #: limit of 1.585 x (read 1.44 x for 1.7 x: measured)
 EXTRA_RANGE = {'bit': (LEVELS[0], 1.0), 'paper': (0.15, 0.6)}
-#: units per fault and calibration scenario flown past the alarm value, at severities drawn
-#: between it and the catalog's end (:func:`end_level`), from the start: a diagnosis answers
-#: over the whole catalog, and calibrated up to the alarm value only, past it the intervals
-#: held 37 of 44 units from the start (a gain loss of 0.72-0.86 read 2 % high on unseen steps,
-#: 0/4) and 12 of 18 onset answers (measured). (Onset units past it, 2 per fault and onset
-#: flight, were flown and left out: single ones read just past the alarm value but far short
-#: of their truth set the spread's growth for every answer; an onset answer takes its onset
-#: entry's wider spread as it is.)
+#: units per fault and calibration scenario (and onset flight, with an onset) flown past the
+#: alarm value, at severities drawn between it and the catalog's end (:func:`end_level`): a
+#: diagnosis answers over the whole catalog, and calibrated up to the alarm value only, past
+#: it the intervals held 37 of 44 units from the start (a gain loss of 0.72-0.86 read 2 % high
+#: on unseen steps, 0/4) and 12 of 18 onset answers (measured)
 PAST_UNITS = 2
 #: units per fault and onset flight flown with the fault beginning mid-flight (an onset drawn
 #: in :data:`ONSET_WINDOW` of the flight, a severity between the levels), diagnosed with
@@ -235,6 +232,16 @@ def onset_jobs(units: int, seed: int) -> list[tuple]:
                 q = round(float(rng.uniform(LEVELS[0], 1.0)), 4)
                 at = rng.uniform(ONSET_WINDOW[0] * duration, ONSET_WINDOW[1] * duration)
                 jobs.append((fault, q, scen, k, round(float(at), 4)))
+    # past the alarm value (appended last: the units before keep their seeds)
+    for scen in ONSET_SCENARIOS:
+        duration = load_scenario(CAL_SCENARIOS[scen]).duration
+        for _ in range(PAST_UNITS):
+            for fault in (f for f in DIAGNOSABLE if end_level(f) > 1.0):
+                k = seed * 1_000_003 + 500_000 + len(jobs)
+                rng = np.random.default_rng(k)
+                rng.uniform()                      # (the draw past_level makes)
+                at = rng.uniform(ONSET_WINDOW[0] * duration, ONSET_WINDOW[1] * duration)
+                jobs.append((fault, past_level(fault, k), scen, k, round(float(at), 4)))
     return jobs
 
 
@@ -411,6 +418,7 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     units past it folded in: measured), and one spread for both made every answer's interval
     as wide as the worst one's."""
     past_records = [r for r in records if r.get('level', 0.0) > 1.0]
+    past_onset = [r for r in onset_records if r.get('level', 0.0) > 1.0 and r.get('refitted')]
     records = [r for r in records if r.get('level', 0.0) <= 1.0]
     onset_records = [r for r in onset_records if r.get('level', 0.0) <= 1.0]
     out: dict[str, Any] = {'faults': _fit_faults(records, shape='constant')}
@@ -442,6 +450,12 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     out['rms_quantiles'] = {str(q): float(np.quantile(rms, q))
                             for q in (0.5, 0.9, 0.99, 0.999, 1.0)}
     out['rms'] = sorted(float(x) for x in rms)
+    if past_onset:
+        # (an onset answer's error past the alarm value is its own, as up to it: its units,
+        # four per fault, are not pooled with those from the start -- read just past the
+        # alarm value but far short of their truth, single ones set a growth of up to 2.2 per
+        # unit of g: measured)
+        out['past_onset'] = _fit_past(past_onset, out, min_units=4)
     if past_records:
         out['past'] = _fit_past(past_records, out)
         # the right fits past the alarm value fit worse (a torque-motor gain loss of 0.78 on
@@ -452,30 +466,34 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     return out
 
 
-def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any]
-              ) -> dict[str, Any]:
+def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any],
+              min_units: int = SCENARIO_UNITS) -> dict[str, Any]:
     """The entries ``past`` of a calibration ``cal`` (its entries up to the alarm value
-    fitted), from ``records`` of units past the alarm value diagnosed from the start: per
-    fault, over the units whose estimate lies past it, by ``x`` in ``g`` (one short of it is
-    answered by the entries up to it), each unit's error after the correction its flight's
-    entry would make; ``slope``: the least-squares line through 0 at the alarm value, and
+    fitted), from ``records`` of units past the alarm value (diagnosed from the start, or
+    refitted at an onset: ``past_onset``): per fault with at least ``min_units`` named, over
+    the units whose estimate lies past it, by ``x`` in ``g`` (one short of it is answered by
+    the entries up to it), each unit's error after the correction its flight's entry would
+    make (an onset unit's, its onset entry); ``slope``: the least-squares line through 0 at the alarm value, and
     ``rate``: how the spread grows with ``x``, ``sqrt(sigma^2 + (rate*x)^2)`` with ``sigma``
     the flight's entry's, at the split-conformal rank of the deviations from the line
     (leave-one-out) -- both continuous at the alarm value, and growing past it (SQ reads a
     leak of 20 x on the paper flight 9 % low, of 60 x 23 %: measured). A spread that stepped
     up at the alarm value, or where the interval first lies wholly past it, widened the
     answers there as much as those at the catalog's end (the bench's intervals held 140 of
-    146 for a stated 90 %, a gain loss of 0.71 answered [0.65, 0.78]); fitted with the onset
-    units past the alarm value too, single ones read just past it but far short of their
-    truth set the rate (7.5 per unit of ``g``; their answers carry their onset entry's wider
-    spread). Pooled over the flights (two units per fault and flight)."""
+    146 for a stated 90 %, a gain loss of 0.71 answered [0.65, 0.78]). Pooled over the flights
+    (two units per fault and flight)."""
     out = {}
     for fault in sorted({r['fault'] for r in records if r['fault']}):
         gd = to_g(fault, FAULTS[fault].demo)
         rows = []
         for r in records:
-            c = fault_calibration(cal, r['fault'], r.get('scenario')) if (
-                r['fault'] == fault and r.get('estimate') is not None) else None
+            if r['fault'] != fault or r.get('estimate') is None:
+                continue
+            scen = r.get('scenario')
+            if r.get('refitted'):
+                own = f'onset:{scen}'
+                scen = own if own in (cal.get('by_scenario') or {}) else 'onset'
+            c = fault_calibration(cal, fault, scen)
             if c is None:
                 continue
             g = to_g(fault, r['estimate'])
@@ -483,7 +501,7 @@ def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any]
             if x > 0:
                 rows.append((x, g - bias_at(c, g) - to_g(fault, r['truth']),
                              spread_of(c, r['se']), r['se'] <= SE_PINNED, r['named'] == fault))
-        if sum(row[-1] for row in rows) < SCENARIO_UNITS:
+        if sum(row[-1] for row in rows) < min_units:
             continue
         x, dev, spread, pinned, named = (np.array(v) for v in zip(*rows))
         if (pinned & named).sum() < 3:
@@ -504,12 +522,16 @@ def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any]
 
 
 def past_correction(cal: Mapping[str, Any], fault: str, g: float,
-                    c: Mapping[str, Any]) -> tuple[float, Mapping[str, Any]]:
+                    c: Mapping[str, Any], onset: bool = False
+                    ) -> tuple[float, Mapping[str, Any]]:
     """For an estimate at ``g`` whose entry up to the alarm value is ``c``: the further bias
     past the alarm value, ``slope`` times how far past it the estimate lies (0 short of it, or
-    without a ``past`` entry of the fault), and the entry whose spread the answer takes,
-    ``c``'s grown by the ``past`` entry's ``rate`` times that distance (in quadrature)."""
-    p = (cal.get('past') or {}).get(fault)
+    without a ``past`` entry of the fault; ``onset``: an answer refitted at an onset, whose
+    entry is ``past_onset`` where the calibration has one for the fault), and the entry whose
+    spread the answer takes, ``c``'s grown by the ``past`` entry's ``rate`` times that
+    distance (in quadrature)."""
+    p = ((cal.get('past_onset') or {}).get(fault) if onset else None) or (
+        cal.get('past') or {}).get(fault)
     gd = to_g(fault, FAULTS[fault].demo)
     x = (g - gd) * math.copysign(1.0, gd)
     if p is None or x <= 0:

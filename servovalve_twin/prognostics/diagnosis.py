@@ -460,7 +460,7 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
         return severity, (lo, hi), 0.0
     se = (to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96)
     g = to_g(fault, severity)
-    further, c = past_correction(cal, fault, g, c)
+    further, c = past_correction(cal, fault, g, c, (scenario or '').startswith(ONSET_ENTRY))
     g = g - bias_at(c, g) - further
     half = Z90 * spread_of(c, se)
     est = min(max(from_g(fault, g), spec.lo), spec.hi)

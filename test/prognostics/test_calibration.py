@@ -247,26 +247,26 @@ def test_the_extra_units_leave_the_first_ones_and_spread_between_the_levels():
 def test_units_past_the_alarm_value_come_last_and_reach_the_catalogs_end():
     """The catalog's end in fractions of the way to the alarm value (hand values: a leak's
     100 x against 10 x is ln 100 / ln 10 = 2; a supply loss's 0.9 against 0.3 is 3; a null
-    bias ends at its alarm value); the units past it are appended to the set (the units
+    bias ends at its alarm value); the units past it are appended to both sets (the units
     before keep their seeds), each fault whose catalog goes past its alarm value on every
-    calibration flight, between the alarm value and the end; the onset units stop at it."""
+    calibration flight (on every onset flight), between the alarm value and the end."""
     assert calibration.end_level('leakage_growth') == pytest.approx(2.0)
     assert calibration.end_level('supply_loss') == pytest.approx(3.0)
     assert calibration.end_level('null_bias') == pytest.approx(1.0)
     assert calibration.end_level('static_friction') == pytest.approx(math.log(50) / math.log(20))
     beyond = [f for f in DIAGNOSABLE if calibration.end_level(f) > 1.0]
     assert 'null_bias' not in beyond and len(beyond) == len(DIAGNOSABLE) - 1
-    jobs, flights = calibration.calibration_jobs(2, 7), calibration.CAL_SCENARIOS
-    n = calibration.PAST_UNITS * len(flights) * len(beyond)
-    past, before = jobs[-n:], jobs[:-n]
-    assert all(j[1] <= 1.0 for j in before)
-    assert sorted({j[2] for j in past}) == sorted(flights)
-    for f in beyond:
-        qs = [j[1] for j in past if j[0] == f]
-        assert len(qs) == calibration.PAST_UNITS * len(flights)
-        assert all(1.0 <= q < calibration.end_level(f) for q in qs)
-        assert all(FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi for q in qs)
-    assert all(j[1] <= 1.0 for j in calibration.onset_jobs(2, 7))
+    for jobs, flights in ((calibration.calibration_jobs(2, 7), calibration.CAL_SCENARIOS),
+                          (calibration.onset_jobs(2, 7), calibration.ONSET_SCENARIOS)):
+        n = calibration.PAST_UNITS * len(flights) * len(beyond)
+        past, before = jobs[-n:], jobs[:-n]
+        assert all(j[1] <= 1.0 for j in before)
+        assert sorted({j[2] for j in past}) == sorted(flights)
+        for f in beyond:
+            qs = [j[1] for j in past if j[0] == f]
+            assert len(qs) == calibration.PAST_UNITS * len(flights)
+            assert all(1.0 <= q < calibration.end_level(f) for q in qs)
+            assert all(FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi for q in qs)
 
 
 def _leak(rng, g_truth: float, err: float, **kw) -> dict:
@@ -310,6 +310,40 @@ def test_the_error_past_the_alarm_value_is_a_line_from_it_and_moves_nothing_else
     assert above[1] == pytest.approx(below[1], rel=1e-5)
     far = model_form_estimate(cal, 'leakage_growth', 10.0 * math.exp(0.5), (16.0, 17.0))[0]
     assert math.log(far) == pytest.approx(ga + 0.5 + 0.05 + 0.1, abs=0.01)
+
+
+def test_an_onset_answer_past_the_alarm_value_has_its_own_entry():
+    """Onset units past a leak's alarm value, refitted at their onset, read -0.4 per unit of
+    g past it (from the start: -0.2): the entry ``past_onset`` has their slope, ``past`` the
+    from-start units' alone; an onset answer takes ``past_onset`` where the calibration has
+    one for its fault, else ``past``; onset units whose answer kept the fit from the start
+    are left out."""
+    rng = np.random.default_rng(12)
+    ga = math.log(10.0)
+
+    def past_unit(slope, **kw):
+        gt = rng.uniform(ga, 2 * ga)
+        ge = (gt - 0.05 + slope * ga) / (1 + slope)
+        return _leak(rng, gt, ge - gt, level=1.5, **kw)
+    rec = [_leak(rng, rng.uniform(0.5, ga), -0.05, level=0.5, scenario='paper')
+           for _ in range(60)]
+    rec += [past_unit(0.2, scenario='paper') for _ in range(20)]
+    onset = [_leak(rng, rng.uniform(0.5, ga), -0.05, level=0.5, scenario='paper',
+                   refitted=True, widen=1.0) for _ in range(20)]
+    onset += [past_unit(0.4, scenario='paper', refitted=True, widen=1.0) for _ in range(8)]
+    onset += [past_unit(3.0, scenario='paper', refitted=False, widen=None) for _ in range(8)]
+    cal = fit_calibration(rec, onset)
+    assert cal['past']['leakage_growth']['slope'] == pytest.approx(-0.2, abs=0.01)
+    assert cal['past_onset']['leakage_growth']['slope'] == pytest.approx(-0.4, abs=0.01)
+    assert cal['past_onset']['leakage_growth']['units'] == 8
+    c = cal['faults']['leakage_growth']
+    assert calibration.past_correction(cal, 'leakage_growth', ga + 0.5, c, onset=True)[0] == \
+        pytest.approx(-0.2, abs=0.01)
+    assert calibration.past_correction(cal, 'leakage_growth', ga + 0.5, c)[0] == \
+        pytest.approx(-0.1, abs=0.005)
+    del cal['past_onset']['leakage_growth']
+    assert calibration.past_correction(cal, 'leakage_growth', ga + 0.5, c, onset=True)[0] == \
+        pytest.approx(-0.1, abs=0.005)
 
 
 def test_an_answer_past_the_alarm_value_is_tested_against_every_right_fit():
@@ -397,8 +431,11 @@ def test_the_factor_an_onset_interval_needs_against_a_hand_count():
 def test_onset_units_draw_severities_and_onsets_of_their_own():
     """The onset units: every diagnosable fault per round and flight (more on the built-in
     test), severities between the levels, onsets inside the window of each flight (the
-    built-in test is 2 s), seeds apart from the calibration set's."""
-    everyone = jobs = calibration.onset_jobs(3, 7)
+    built-in test is 2 s), seeds apart from the calibration set's; then those past the alarm
+    value (their own test)."""
+    everyone = calibration.onset_jobs(3, 7)
+    jobs = [j for j in everyone if j[1] <= 1.0]
+    assert everyone[:len(jobs)] == jobs
     assert len(jobs) == sum(3 + calibration.ONSET_EXTRA.get(scen, 0)
                             for scen in calibration.ONSET_SCENARIOS) * len(DIAGNOSABLE)
     assert [j[0] for j in jobs[:len(DIAGNOSABLE)]] == list(DIAGNOSABLE)
