@@ -24,7 +24,8 @@ from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_FILE, LEVELS,
                                                      EXTRA_UNITS, NOISE, ONSET_EXTRA,
                                                      ONSET_SCENARIOS,
-                                                     ONSET_UNITS, ONSET_WINDOW, PAST_UNITS, VARY,
+                                                     ONSET_UNITS, ONSET_WINDOW, PAST_ONSET_UNITS,
+                                                     PAST_UNITS, VARY,
                                                      calibration_jobs, fit_calibration,
                                                      onset_jobs, to_g, unit_signals,
                                                      widen_needed)
@@ -162,6 +163,7 @@ def main() -> None:
                            onset_results=_keyed(onsets)), fh)
     out = dict(about=dict(model='SQ', plant='HD', seed=args.seed, units=args.units,
                           extra_units=EXTRA_UNITS, past_units=PAST_UNITS,
+                          past_onset_units=PAST_ONSET_UNITS,
                           scenarios=sorted(CAL_SCENARIOS), levels=list(LEVELS), vary=VARY,
                           spread=SPREAD, onset_units=args.onset_units,
                           onset_extra=ONSET_EXTRA,

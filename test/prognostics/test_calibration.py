@@ -256,15 +256,18 @@ def test_units_past_the_alarm_value_come_last_and_reach_the_catalogs_end():
     assert calibration.end_level('static_friction') == pytest.approx(math.log(50) / math.log(20))
     beyond = [f for f in DIAGNOSABLE if calibration.end_level(f) > 1.0]
     assert 'null_bias' not in beyond and len(beyond) == len(DIAGNOSABLE) - 1
-    for jobs, flights in ((calibration.calibration_jobs(2, 7), calibration.CAL_SCENARIOS),
-                          (calibration.onset_jobs(2, 7), calibration.ONSET_SCENARIOS)):
-        n = calibration.PAST_UNITS * len(flights) * len(beyond)
+    for jobs, flights, units in (
+            (calibration.calibration_jobs(2, 7), calibration.CAL_SCENARIOS,
+             calibration.PAST_UNITS),
+            (calibration.onset_jobs(2, 7), calibration.ONSET_SCENARIOS,
+             calibration.PAST_ONSET_UNITS)):
+        n = units * len(flights) * len(beyond)
         past, before = jobs[-n:], jobs[:-n]
         assert all(j[1] <= 1.0 for j in before)
         assert sorted({j[2] for j in past}) == sorted(flights)
         for f in beyond:
             qs = [j[1] for j in past if j[0] == f]
-            assert len(qs) == calibration.PAST_UNITS * len(flights)
+            assert len(qs) == units * len(flights)
             assert all(1.0 <= q < calibration.end_level(f) for q in qs)
             assert all(FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi for q in qs)
 
