@@ -420,8 +420,9 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     ``by_scenario['onset:<scenario>']`` (per flight, its ``scenario``), and the factor on
     their onset intervals (``onset_widen``, by the same keys, from each named unit's
     ``widen``: :func:`widen_needed`) -- and nothing else. A record whose ``level`` (its
-    fraction of the way to the alarm value) is past 1 is fitted apart, into ``past``
-    (:func:`_fit_past`), and enters no other entry: the model-form error grows past the alarm
+    fraction of the way to the alarm value) is past 1 is fitted apart, into ``past`` (from
+    the start) and ``past_onset`` (refitted at an onset; :func:`_fit_past`), the from-start
+    ones' RMS into ``past_rms``; it enters no other entry: the model-form error grows past the alarm
     value (a leak on the paper flight: a spread of 0.004 in ``g`` up to it, 0.094 with the
     units past it folded in: measured), and one spread for both made every answer's interval
     as wide as the worst one's."""

@@ -367,7 +367,8 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
         return
     d.calibration = cal
     d.calibration_scenario = scenario if scenario in (cal.get('by_scenario') or {}) else None
-    # an answer past its fault's alarm value is tested against the right fits past it
+    # an answer past its fault's alarm value is tested against every right fit, those past
+    # it included (they fit worse)
     past = len(d.best.faults) == 1 and past_alarm(d.best.fault, d.best.severity)
     d.p_value = gof_p_value(cal, d.fit_rms, past)
     d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(gof_reference(cal, past),
