@@ -95,6 +95,9 @@ def test_a_right_hypothesis_is_not_unexplained():
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('M', 'CJ'))
     assert d.verdict == '' and d.best.fault == 'leakage_growth' and d.p_value > 0.01
     assert d.confidence == 0.9
+    # every other hypothesis fits far worse: no rival, only the fault SQ cannot hypothesise
+    assert d.rivals == [] and d.also_consistent_with == ['clearance_growth'] and all(
+        c.score - d.best.score >= 10 for c in d.candidates[1:])
 
 
 @pytest.mark.slow
