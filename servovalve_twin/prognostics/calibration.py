@@ -462,7 +462,7 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     if past_onset:
         # (an onset answer's error past the alarm value is its own, as up to it: its units,
         # eight per fault, are not pooled with those from the start -- read just past the
-        # alarm value but far short of their truth, single ones set a growth of up to 2.2 per
+        # alarm value but far short of their truth, single ones set a growth of up to 2.0 per
         # unit of g for every answer: measured)
         out['past_onset'] = _fit_past(past_onset, out)
     if past_records:
