@@ -134,6 +134,7 @@ def near_limits(units: int, seed: int, spread: float, free, scens) -> None:
     """``--near-limits``: units whose fault lies just beyond the detection limit stated for
     their flight (:data:`NEAR` of its distance from healthy): how often is a fault the limit
     says the flight shows named?"""
+    from bench_onset import in_catalog
     from bench_physics import machine
     from servovalve_twin.physics.faults import FAULTS
     from servovalve_twin.prognostics.calibration import to_g
@@ -152,10 +153,9 @@ def near_limits(units: int, seed: int, spread: float, free, scens) -> None:
                 continue
             for m in NEAR:
                 # the fraction of the way to the alarm value at m x the limit's distance
-                spec = FAULTS[lim.fault]
-                q = m * to_g(lim.fault, lim.limit) / to_g(lim.fault, spec.demo)
-                if not spec.lo <= severity_at(lim.fault, q) <= spec.hi:
-                    continue                     # beyond the catalog's range
+                q = m * to_g(lim.fault, lim.limit) / to_g(lim.fault, FAULTS[lim.fault].demo)
+                if not in_catalog(lim.fault, q):
+                    continue
                 for _ in range(units):
                     jobs.append(('inside', lim.fault, q, scen, base + k, spread, free, m,
                                  lim.limit))

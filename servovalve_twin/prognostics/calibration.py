@@ -138,6 +138,13 @@ def end_level(fault: str) -> float:
     return to_g(fault, end) / to_g(fault, f.demo)
 
 
+def past_by(fault: str, g: float) -> float:
+    """How far past the fault's alarm value ``g`` (its coordinate) lies, away from healthy
+    (negative short of it)."""
+    gd = to_g(fault, FAULTS[fault].demo)
+    return (g - gd) * math.copysign(1.0, gd)
+
+
 def to_g(fault: str, s: float) -> float:
     """A severity in the fault's calibration coordinate (see the module docstring)."""
     f = FAULTS[fault]
@@ -326,21 +333,6 @@ def _conformal(dev: np.ndarray, half: Any, lo: float, hi: float) -> float:
     return hi
 
 
-def _spread(dev: np.ndarray, se: np.ndarray, loose: np.ndarray, se_loose: np.ndarray
-            ) -> tuple[float, float]:
-    """``sigma``, the model-form spread that holds the pinned units' deviations ``dev`` (their
-    own standard errors ``se``) at the split-conformal rank with z = :data:`Z90`, and ``k``,
-    the factor on the unpinned units' own ``se_loose`` that then holds their deviations
-    ``loose`` alike (1 if none)."""
-    sigma = _conformal(dev, lambda v: Z90 * np.sqrt(se ** 2 + v ** 2), 0.0,
-                       max(1e-6, float(np.max(np.abs(dev))) / Z90 * 1.01))
-    k = 1.0
-    if len(loose):
-        k = _conformal(loose, lambda v: Z90 * np.sqrt((v * se_loose) ** 2 + sigma ** 2),
-                       1.0, 2.0)
-    return sigma, k
-
-
 def _fit_faults(records: Sequence[Mapping[str, Any]], *, shape: str, min_units: int = 5
                 ) -> dict[str, Any]:
     """Per fault with at least ``min_units`` units where it was named: the bias of
@@ -395,9 +387,15 @@ def _fit_faults(records: Sequence[Mapping[str, Any]], *, shape: str, min_units: 
                 loo[m] = err[i] - _kernel(pts[keep], ge[i])
         else:
             loo = err[scored] - entry['bias']
+        sp = se[scored]
+        sigma = _conformal(loo, lambda v: Z90 * np.sqrt(sp ** 2 + v ** 2), 0.0,
+                           max(1e-6, float(np.max(np.abs(loo))) / Z90 * 1.01))
+        k = 1.0
         loose = np.flatnonzero(~pinned & named)
-        sigma, k = _spread(loo, se[scored], err[loose] - np.array(
-            [bias_at(entry, g) for g in ge[loose]]), se[loose])
+        if len(loose):
+            su = se[loose]
+            dev = err[loose] - np.array([bias_at(entry, g) for g in ge[loose]])
+            k = _conformal(dev, lambda v: Z90 * np.sqrt((v * su) ** 2 + sigma ** 2), 1.0, 2.0)
         entry.update(sigma=sigma, k=k, units=int(named.sum()), pinned=len(scored),
                      fitted=len(fit),
                      named=int(named.sum()) / sum(1 for r in records if r['fault'] == fault))
@@ -422,10 +420,10 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     ``widen``: :func:`widen_needed`) -- and nothing else. A record whose ``level`` (its
     fraction of the way to the alarm value) is past 1 is fitted apart, into ``past`` (from
     the start) and ``past_onset`` (refitted at an onset; :func:`_fit_past`), the from-start
-    ones' RMS into ``past_rms``; it enters no other entry: the model-form error grows past the alarm
-    value (a leak on the paper flight: a spread of 0.004 in ``g`` up to it, 0.094 with the
-    units past it folded in: measured), and one spread for both made every answer's interval
-    as wide as the worst one's."""
+    ones' RMS into ``past_rms``; it enters no other entry: the model-form error grows past the
+    alarm value (a leak on the paper flight: a spread of 0.004 in ``g`` up to it, 0.094 with
+    the units past it folded in: measured), and one spread for both made every answer's
+    interval as wide as the worst one's."""
     past_records = [r for r in records if r.get('level', 0.0) > 1.0]
     past_onset = [r for r in onset_records if r.get('level', 0.0) > 1.0 and r.get('refitted')]
     records = [r for r in records if r.get('level', 0.0) <= 1.0]
@@ -482,31 +480,30 @@ def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any],
     refitted at an onset: ``past_onset``): per fault with at least ``min_units`` named, over
     the units whose estimate lies past it, by ``x`` in ``g`` (one short of it is answered by
     the entries up to it), each unit's error after the correction its flight's entry would
-    make (an onset unit's, its onset entry); ``slope``: the least-squares line through 0 at the alarm value, and
-    ``rate``: how the spread grows with ``x``, ``sqrt(sigma^2 + (rate*x)^2)`` with ``sigma``
-    the flight's entry's, at the split-conformal rank of the deviations from the line
-    (leave-one-out) -- both continuous at the alarm value, and growing past it (SQ reads a
-    leak of 20 x on the paper flight 9 % low, of 60 x 23 %: measured). A spread that stepped
+    make (an onset unit's, its onset entry); ``slope``: the least-squares line through 0 at
+    the alarm value, and ``rate``: how the spread grows with ``x``, ``sqrt(sigma^2 +
+    (rate*x)^2)`` with ``sigma`` the flight's entry's, at the split-conformal rank of the
+    deviations from the line (leave-one-out) -- both continuous at the alarm value, and
+    growing past it (SQ reads a leak of 20 x on the paper flight 9 % low, of 60 x 23 %:
+    measured). A spread that stepped
     up at the alarm value, or where the interval first lies wholly past it, widened the
     answers there as much as those at the catalog's end (the bench's intervals held 140 of
     146 for a stated 90 %, a gain loss of 0.71 answered [0.65, 0.78]). Pooled over the flights
     (two units per fault and flight)."""
+    from .diagnosis import onset_entry
     out = {}
     for fault in sorted({r['fault'] for r in records if r['fault']}):
-        gd = to_g(fault, FAULTS[fault].demo)
         rows = []
         for r in records:
             if r['fault'] != fault or r.get('estimate') is None:
                 continue
             scen = r.get('scenario')
-            if r.get('refitted'):
-                own = f'onset:{scen}'
-                scen = own if own in (cal.get('by_scenario') or {}) else 'onset'
-            c = fault_calibration(cal, fault, scen)
+            c = fault_calibration(cal, fault,
+                                  onset_entry(cal, scen) if r.get('refitted') else scen)
             if c is None:
                 continue
             g = to_g(fault, r['estimate'])
-            x = (g - gd) * math.copysign(1.0, gd)
+            x = past_by(fault, g)
             if x > 0:
                 rows.append((x, g - bias_at(c, g) - to_g(fault, r['truth']),
                              spread_of(c, r['se']), r['se'] <= SE_PINNED, r['named'] == fault))
@@ -541,8 +538,7 @@ def past_correction(cal: Mapping[str, Any], fault: str, g: float,
     distance (in quadrature)."""
     p = ((cal.get('past_onset') or {}).get(fault) if onset else None) or (
         cal.get('past') or {}).get(fault)
-    gd = to_g(fault, FAULTS[fault].demo)
-    x = (g - gd) * math.copysign(1.0, gd)
+    x = past_by(fault, g)
     if p is None or x <= 0:
         return 0.0, c
     return p['slope'] * x, dict(c, sigma=math.hypot(c['sigma'], p['rate'] * x))
@@ -647,5 +643,5 @@ __all__ = ['calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen', 'fit
            'gof_reference', 'past_correction',
            'fault_calibration', 'bias_at', 'unit_signals', 'sensor_warnings', 'spread_of',
            'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at', 'end_level',
-           'past_level',
+           'past_level', 'past_by',
            'to_g', 'from_g']

@@ -359,7 +359,7 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
     where SQ's nominal run is 5.4 residual scales from HD's against 0.8-1 on the calibration
     flights -- made every healthy unit 'unexplained' though no fault improved on healthy: the
     misfit was the model's, which this flight shows as it shows any fault's."""
-    from .calibration import gof_p_value, gof_reference
+    from .calibration import gof_p_value, gof_reference, past_by, to_g
     if cal is None:
         d.warnings.append(f'no model-form calibration for {d.model} with free '
                           f'{",".join(sorted(free)) or "none"}: the interval counts the '
@@ -369,7 +369,8 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
     d.calibration_scenario = scenario if scenario in (cal.get('by_scenario') or {}) else None
     # an answer past its fault's alarm value is tested against every right fit, those past
     # it included (they fit worse)
-    past = len(d.best.faults) == 1 and past_alarm(d.best.fault, d.best.severity)
+    past = len(d.best.faults) == 1 and past_by(d.best.fault,
+                                               to_g(d.best.fault, d.best.severity)) > 0
     d.p_value = gof_p_value(cal, d.fit_rms, past)
     d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(gof_reference(cal, past),
                                                          REFERENCE_QUANTILE))
@@ -405,13 +406,9 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
     # built before it flew units past it, or a fault it has too few of there): an interval
     # wholly past it is extrapolated (at 1.15 of the way, 12 of 18 onset answers' intervals
     # held the truth: measured)
-    from .calibration import to_g
     for f, iv in zip(best.faults, ivs):
-        spec = FAULTS[f]
-        way = 1.0 if spec.demo > spec.healthy else -1.0
-        if f not in (cal.get('past') or {}) and min(
-                way * to_g(f, iv[0]), way * to_g(f, iv[1])) > way * to_g(f, spec.demo):
-            d.warnings.append(f'{f} past its alarm value ({spec.demo:g}): the model-form '
+        if f not in (cal.get('past') or {}) and min(past_by(f, to_g(f, s)) for s in iv) > 0:
+            d.warnings.append(f'{f} past its alarm value ({FAULTS[f].demo:g}): the model-form '
                               'calibration flies severities up to it, so this answer is '
                               'extrapolated and its interval may be too narrow')
     d.interval_counts = 'measurement noise and the model-form error calibrated against HD' + (
@@ -497,12 +494,6 @@ def _one_sided(fault: str, interval: tuple[float, float]) -> str:
         return ''
     near = lo if up else hi
     return f'{fault} {">=" if up else "<="} {near:.4g}'
-
-
-def past_alarm(fault: str, severity: float) -> bool:
-    """``severity`` lies past the fault's alarm value (farther from healthy)."""
-    from .calibration import to_g
-    return to_g(fault, severity) / to_g(fault, FAULTS[fault].demo) > 1.0
 
 
 def sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:

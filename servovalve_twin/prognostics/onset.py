@@ -68,6 +68,8 @@ class OnsetProfile:
         self.nominal = problem.params((), [], cand.free)
         self.fits: dict[float, tuple[float, float, Any]] = {}
         self.refined = False
+        #: :func:`_at_onset`'s answer, with how many instants had been tried when it was made
+        self.at_onset: tuple[int, tuple] | None = None
 
     def cost(self, tau: float) -> float:
         from scipy.optimize import least_squares
@@ -201,8 +203,11 @@ def _at_onset(problem: Problem, prof: OnsetProfile) -> tuple:
     nuisance (the profile holds the nuisance where the fault's fit from the start put it,
     which that fit bent to explain the healthy part: a gain loss of 0.7 from 0.3 s left 15 x
     a right fit's RSS there and was called unexplained: measured): (prof, tau, severity, rss,
-    x, residuals, jacobian, nuisance)."""
+    x, residuals, jacobian, nuisance). Made once per state of the profile: a contender
+    refitted to choose the verdict is not refitted again to see whether it is a rival."""
     _refine(prof)
+    if prof.at_onset is not None and prof.at_onset[0] == len(prof.fits):
+        return prof.at_onset[1]
     tau, sev, rss, sol = prof.best()
     x, res, jac, free = sol.x, sol.fun, sol.jac, dict(prof.cand.free)
     if free:
@@ -213,7 +218,8 @@ def _at_onset(problem: Problem, prof: OnsetProfile) -> tuple:
             x, res, jac = x2, res2, jac2
             sev, rss = float(x2[0]), float(res2 @ res2)
             free = {k: float(v) for k, v in zip(names, x2[1:])}
-    return prof, tau, sev, rss, x, res, jac, free
+    prof.at_onset = (len(prof.fits), (prof, tau, sev, rss, x, res, jac, free))
+    return prof.at_onset[1]
 
 
 def _nuisance_profile(problem: Problem, prof: OnsetProfile, chosen: tuple
