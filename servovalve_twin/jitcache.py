@@ -1,13 +1,16 @@
-"""``jit``: numba's ``njit(cache=True)`` with a cache that is invalidated by a change anywhere in
-the compiled physics, not only in the function's own file.
+"""``jit``: numba's ``njit(cache=True)`` with a cache that is invalidated by a change in any
+source the function may compile, not only in the function's own file.
 
-Why. numba keys a cached function on its own source file: the step loops in
-``physics/plant.py`` inline the valve models of ``physics/valves/*.py``, the ECU, the servovalve
-and the jack, and after an edit (or an upgrade) of one of those, numba would load the old
-machine code for the loop -- silently wrong physics. Here every cached function of the physics
-carries one stamp, a digest of all of ``physics/``'s sources, so any change recompiles them all
-once and the next processes load from the cache again (bench/README.md: first-ever and warm
-start-up).
+Why. numba keys a cached function on its own source file's modification time and size: the step
+loops in ``physics/plant.py`` inline the valve models of ``physics/valves/*.py``, the ECU, the
+servovalve and the jack, and the monitor's tick (``prognostics/monitor_loop.py``) calls the
+plant's; after an edit (or an upgrade) of one of those, numba would load the old machine code --
+silently wrong results. Here each cached function carries a stamp of its own,
+:func:`source_stamp`: a digest of the contents of its module and of every module of its package
+that module imports, directly or through others (a compiled function can reach no other code: a
+global it calls or a constant it freezes in comes from an import), whichever folder they are in.
+Any change recompiles the functions that can see it, once, and the next processes load from the
+cache again (bench/README.md: first-ever and warm start-up).
 
 Where the cache lives is numba's choice (``__pycache__`` next to the source when writable,
 else the user-wide cache directory; ``NUMBA_CACHE_DIR`` overrides both).
@@ -15,6 +18,7 @@ else the user-wide cache directory; ``NUMBA_CACHE_DIR`` overrides both).
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import os
@@ -26,7 +30,9 @@ _THIS_FILE = os.path.abspath(__file__)
 @functools.lru_cache(maxsize=None)
 def physics_stamp() -> bytes:
     """SHA-256 over the relative names and contents of every ``.py`` file under physics/, and
-    of this file (it holds the compile options: an edit of them must recompile too)."""
+    of this file (it holds the compile options: an edit of them must recompile too): the name
+    of the ahead-of-time module of the step loops (:mod:`~servovalve_twin.aot`), which compiles
+    physics only. The JIT's disk cache is keyed per function, :func:`source_stamp`."""
     h = hashlib.sha256()
     with open(_THIS_FILE, 'rb') as f:
         h.update(f.read())
@@ -40,39 +46,125 @@ def physics_stamp() -> bytes:
     return h.digest()
 
 
+def _package_root(path: str) -> str | None:
+    """The folder holding the top package of the module at ``path``, or None for a module
+    outside any package."""
+    folder = os.path.dirname(path)
+    if not os.path.isfile(os.path.join(folder, '__init__.py')):
+        return None
+    while os.path.isfile(os.path.join(os.path.dirname(folder), '__init__.py')):
+        folder = os.path.dirname(folder)
+    return os.path.dirname(folder)
+
+
+def _module_file(root: str, dotted: str) -> str | None:
+    """The source of module ``dotted`` under ``root`` (``a/b.py`` or ``a/b/__init__.py``)."""
+    base = os.path.join(root, *dotted.split('.'))
+    for candidate in (base + '.py', os.path.join(base, '__init__.py')):
+        if os.path.isfile(candidate):
+            return candidate
+    return None
+
+
+def _imported_files(path: str, root: str, top: str) -> set[str]:
+    """The sources under ``root`` of package ``top`` that the module at ``path`` imports
+    (absolute or relative; a ``from X import name`` counts X and, where ``name`` is a
+    submodule, that submodule). The packages a module lies in count too: importing it runs
+    their ``__init__``."""
+    rel = os.path.relpath(path, root)[:-len('.py')].split(os.sep)
+    if rel[-1] == '__init__':
+        rel = rel[:-1]
+        package = rel
+    else:
+        package = rel[:-1]
+    with open(path, 'rb') as f:
+        tree = ast.parse(f.read(), path)
+    names = ['.'.join(package[:i]) for i in range(1, len(package) + 1)]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[:len(package) - node.level + 1]
+                dotted = '.'.join(base + ([node.module] if node.module else []))
+            else:
+                dotted = node.module or ''
+            names.append(dotted)
+            names += [f'{dotted}.{a.name}' for a in node.names if a.name != '*']
+    found = set()
+    for dotted in names:
+        if dotted.split('.')[0] != top:
+            continue
+        parts = dotted.split('.')
+        for i in range(1, len(parts) + 1):      # every package on the way is imported too
+            f = _module_file(root, '.'.join(parts[:i]))
+            if f is not None:
+                found.add(f)
+    return found
+
+
 @functools.lru_cache(maxsize=None)
-def _physics_cache_class():
-    """numba's function cache keyed on the physics stamp, or None where this numba's cache
-    classes (internal API) are not where they were: ``cache=True`` then."""
+def source_stamp(path: str) -> bytes:
+    """SHA-256 over the contents of the module at ``path``, of every module of its package it
+    imports, transitively (:func:`_imported_files`), and of this file (it holds the compile
+    options: an edit of them must recompile too). Each file is named by its path relative to
+    the package root, so a copy of the package elsewhere keeps the stamp."""
+    path = os.path.abspath(path)
+    root = _package_root(path)
+    seen = {path}
+    if root is not None:
+        top = os.path.relpath(path, root).split(os.sep)[0]
+        todo = [path]
+        while todo:
+            for f in _imported_files(todo.pop(), root, top):
+                if f not in seen:
+                    seen.add(f)
+                    todo.append(f)
+    h = hashlib.sha256()
+    with open(_THIS_FILE, 'rb') as f:
+        h.update(f.read())
+    base = root or os.path.dirname(path)
+    for name in sorted(os.path.relpath(f, base) for f in seen):
+        h.update(name.encode() + b'\0')
+        with open(os.path.join(base, name), 'rb') as f:
+            h.update(hashlib.sha256(f.read()).digest())
+    return h.digest()
+
+
+@functools.lru_cache(maxsize=None)
+def _stamped_cache_class():
+    """numba's function cache keyed on :func:`source_stamp` of the function's module, or None
+    where this numba's cache classes (internal API) are not where they were: ``cache=True``
+    then."""
     try:
         from numba.core.caching import CompileResultCacheImpl, FunctionCache
     except ImportError:          # pragma: no cover - depends on the numba version
         return None
 
-    class _PhysicsCacheImpl(CompileResultCacheImpl):
+    class _StampedCacheImpl(CompileResultCacheImpl):
         def __init__(self, py_func):
-            super().__init__(py_func)
-            stamp = physics_stamp()
+            super().__init__(py_func)       # RuntimeError where the source file is gone
+            stamp = source_stamp(py_func.__code__.co_filename)
             self._locator.get_source_stamp = lambda: stamp
 
-    class _PhysicsCache(FunctionCache):
-        _impl_class = _PhysicsCacheImpl
+    class _StampedCache(FunctionCache):
+        _impl_class = _StampedCacheImpl
 
-    return _PhysicsCache
+    return _StampedCache
 
 
 def _dispatcher(f, options):
-    """``njit(**options)(f)`` whose disk cache carries the physics stamp."""
+    """``njit(**options)(f)`` whose disk cache carries the function's source stamp."""
     from numba import njit
     dispatcher = njit(**options)(f)
-    cache = _physics_cache_class()
+    cache = _stamped_cache_class()
     try:
         if cache is None:
             dispatcher.enable_caching()
         else:
-            # what cache=True does (Dispatcher.enable_caching), with the physics-wide stamp
+            # what cache=True does (Dispatcher.enable_caching), with the function's stamp
             dispatcher._cache = cache(dispatcher.py_func)
-    except RuntimeError:
+    except (RuntimeError, OSError):
         # no place to key a cache on: the source file is gone (an FMU's resources, deleted
         # by the importer after a run, while the module stays imported): compiled in memory
         pass
@@ -121,7 +213,7 @@ class LazyJit:
 
 
 def jit(fn=None, **options):
-    """``@jit`` or ``@jit(inline='always')``: ``njit`` cached on disk under the physics stamp,
+    """``@jit`` or ``@jit(inline='always')``: ``njit`` cached on disk under its source stamp,
     made on first use (:class:`LazyJit`)."""
     def wrap(f):
         return LazyJit(f, options)

@@ -2,6 +2,7 @@
 physics imports no numba, compiled as numba's own dispatchers would be."""
 
 import importlib
+import os
 import subprocess
 import sys
 
@@ -80,3 +81,69 @@ def test_a_function_whose_source_is_gone_compiles_in_memory(tmp_path):
         assert gone_mod.twice(21) == 42
     finally:
         del sys.modules['gone_mod']
+
+
+def _run_scratch(tmp_path, cache):
+    """``scratchpkg.loop.tick.scaled(1.0)`` in a new process whose numba disk cache is
+    ``cache``; returns the value and whether it was loaded from the cache."""
+    script = ('import scratchpkg.loop.tick as t; v = t.scaled(1.0); '
+              'print(v, t.scaled.dispatcher.stats.cache_hits.get(t.scaled.signatures[0], 0))')
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache),
+               PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         env=env, cwd=tmp_path, check=True).stdout.split()
+    return float(out[0]), int(out[1]) > 0
+
+
+def test_a_cached_function_sees_an_edit_of_any_module_it_imports(tmp_path):
+    """A jitted function outside physics/ (as the monitor's tick is) freezes in a constant of
+    its own module and calls a function of a sibling package: an edit of either -- same size,
+    so that not even numba's own modification-time stamp would help where the clock is coarse
+    -- is compiled anew in the next process with the same disk cache, never loaded stale;
+    an unchanged package is loaded from the cache."""
+    pkg = tmp_path / 'scratchpkg'
+    (pkg / 'loop').mkdir(parents=True)
+    (pkg / 'gains').mkdir()
+    for d in (pkg, pkg / 'loop', pkg / 'gains'):
+        (d / '__init__.py').write_text('')
+    gain = pkg / 'gains' / 'law.py'
+    gain.write_text('from servovalve_twin.jitcache import jit\n\nK = 3.0\n\n\n'
+                    '@jit\ndef law(x):\n    return K * x\n')
+    tick = pkg / 'loop' / 'tick.py'
+    tick.write_text('from servovalve_twin.jitcache import jit\n\nfrom ..gains.law import law'
+                    '\n\nOFFSET = 1.0\n\n\n@jit\ndef scaled(x):\n    return law(x) + OFFSET\n')
+    cache = tmp_path / 'cache'
+    assert _run_scratch(tmp_path, cache) == (4.0, False)
+    assert _run_scratch(tmp_path, cache) == (4.0, True)
+    tick.write_text(tick.read_text().replace('OFFSET = 1.0', 'OFFSET = 2.0'))
+    assert _run_scratch(tmp_path, cache) == (5.0, False)
+    gain.write_text(gain.read_text().replace('K = 3.0', 'K = 5.0'))
+    assert _run_scratch(tmp_path, cache) == (7.0, False)
+    assert _run_scratch(tmp_path, cache) == (7.0, True)
+
+
+def test_the_monitor_tick_stamp_covers_the_physics_it_calls(tmp_path):
+    """The monitor's tick (prognostics/) is stamped with its own module and the physics it
+    calls: an edit of monitor_loop.py or of a valve model changes its stamp; an edit of a
+    module it does not import (the CLI) does not."""
+    import shutil
+
+    from servovalve_twin import jitcache
+    src = os.path.dirname(jitcache.__file__)
+    copy = tmp_path / 'servovalve_twin'
+    shutil.copytree(src, copy, ignore=shutil.ignore_patterns('__pycache__', '*.so', 'data'))
+    loop = str(copy / 'prognostics' / 'monitor_loop.py')
+
+    def stamp():
+        jitcache.source_stamp.cache_clear()
+        return jitcache.source_stamp(loop)
+
+    before = stamp()
+    for edited, changes in (('cli/__main__.py', False), ('prognostics/monitor_loop.py', True),
+                            ('physics/valves/hd.py', True), ('physics/plant.py', True)):
+        f = copy / edited
+        f.write_text(f.read_text() + '\n# edited\n')
+        after = stamp()
+        assert (after != before) == changes, edited
+        before = after
+    jitcache.source_stamp.cache_clear()
