@@ -16,7 +16,7 @@ import math
 from typing import Any, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from std_msgs.msg import Float64
 
 from ..errors import TwinError
@@ -37,6 +37,19 @@ def algorithm_topics(alg: Algorithm) -> dict[str, tuple]:
     return out
 
 
+#: the range of ``diagnostics_period`` [s]: a number of nanoseconds the node can hold (an
+#: infinite one killed the node in its next tick: OverflowError converting it to ns)
+MIN_DIAGNOSTICS_PERIOD, MAX_DIAGNOSTICS_PERIOD = 1e-6, 1e6
+
+
+def _check_period(period: Any) -> None:
+    if not (isinstance(period, (int, float)) and not isinstance(period, bool)
+            and MIN_DIAGNOSTICS_PERIOD <= period <= MAX_DIAGNOSTICS_PERIOD):
+        raise TwinError(f'diagnostics_period must be a number of seconds in '
+                        f'[{MIN_DIAGNOSTICS_PERIOD:g}, {MAX_DIAGNOSTICS_PERIOD:g}], got '
+                        f'{period!r}')
+
+
 class AlgorithmNode(TwinNode):
     """Hosts ``algorithm`` (an instance; alone, built from the ``class`` parameter)."""
 
@@ -48,7 +61,11 @@ class AlgorithmNode(TwinNode):
             ParameterDescriptor(description='the algorithm, package.module:ClassName',
                                 read_only=True))
         self.declare_parameter('diagnostics_period', 0.01, ParameterDescriptor(
-            description='DiagnosticArray period [s] (and at every level change)'))
+            description='DiagnosticArray period [s] (and at every level change)',
+            floating_point_range=[FloatingPointRange(
+                from_value=MIN_DIAGNOSTICS_PERIOD, to_value=MAX_DIAGNOSTICS_PERIOD,
+                step=0.0)]))
+        _check_period(self.get_parameter('diagnostics_period').value)
         if algorithm is None:
             spec = self.get_parameter('class').value
             if not spec:
@@ -85,9 +102,8 @@ class AlgorithmNode(TwinNode):
         return values
 
     def check_parameters(self, changes: dict[str, Any]) -> None:
-        period = changes.get('diagnostics_period')
-        if period is not None and not (isinstance(period, (int, float)) and period > 0):
-            raise TwinError(f'diagnostics_period must be > 0 s, got {period!r}')
+        if 'diagnostics_period' in changes:
+            _check_period(changes['diagnostics_period'])
         super().check_parameters(changes)
 
     def step(self, tick: tuple[int, int], values: dict[str, float]) -> None:

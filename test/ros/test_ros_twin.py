@@ -569,3 +569,41 @@ def test_the_clock_owner_waits_for_a_lagging_follower(ros_context, tmp_path):
     run = read_bag(tmp_path / 'right')
     ref = simulate('C2', raw, ecu_period=1e-3)
     np.testing.assert_array_equal(run.signals['xj'], ref['xj'])
+
+
+BAD_VALUES = (math.inf, -math.inf, math.nan, 0.0, -1.0, 1e308, 0, -1, 'x', True)
+
+
+def test_no_live_parameter_value_stops_the_twin(ros_context, tmp_path):
+    """Every parameter of every node of a running twin (plant C2, monitor SQ), set to inf,
+    -inf, nan, 0, -1, 1e308, an integer, a string and a bool between ticks: a set either is
+    refused with a reason or leaves a value the node runs with -- the run ends, the bag holds
+    every row (diagnostics_period = inf was accepted and killed the monitor in its next tick:
+    OverflowError)."""
+    from servovalve_twin.bag.reader import read_bag
+    refused = accepted = 0
+
+    def hostile(i, twin):
+        nonlocal refused, accepted
+        if i != 50:
+            return
+        for node in twin.nodes:
+            for name in sorted(node._parameters):
+                if name == 'use_sim_time':
+                    continue
+                for value in BAD_VALUES:
+                    r = node.set_parameters([Parameter(name, value=value)])[0]
+                    if r.successful:
+                        accepted += 1
+                    else:
+                        refused += 1
+                        assert r.reason, (node.get_name(), name, value)
+    with Twin('C2', SHORT, context=ros_context, monitor='SQ', bag=tmp_path / 'b') as twin:
+        assert twin.monitor in twin.nodes
+        twin.run(on_tick=hostile)
+        rows = twin.monitor.get_parameter('diagnostics_period').value
+        assert math.isfinite(rows) and rows > 0
+    print(f'{refused} sets refused, {accepted} accepted')
+    assert refused > 0
+    topics = read_bag(tmp_path / 'b').topics
+    assert topics['/xj'] == topics['/monitor/residual_xj'] == round(SHORT['duration'] / 1e-3) + 1
