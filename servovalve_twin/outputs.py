@@ -16,6 +16,7 @@ import errno
 import os
 import secrets
 import shutil
+import stat
 from pathlib import Path
 from typing import IO, Iterator
 
@@ -37,9 +38,32 @@ def new_temporary(directory: Path, prefix: str, suffix: str) -> tuple[int, Path]
     raise FileExistsError(errno.EEXIST, 'no free temporary name', str(directory))
 
 
+def _kind(mode: int) -> str | None:
+    """What a file of ``mode`` is, where it is not something an output may replace (a
+    regular file, or a symbolic link, replaced as a link)."""
+    for test, name in ((stat.S_ISDIR, 'a directory'), (stat.S_ISFIFO, 'a FIFO'),
+                       (stat.S_ISSOCK, 'a socket'), (stat.S_ISCHR, 'a character device'),
+                       (stat.S_ISBLK, 'a block device')):
+        if test(mode):
+            return name
+    return None
+
+
+def refuse_special(path: Path) -> None:
+    """Refuse an output path that exists and is not a regular file: renaming onto a device,
+    a FIFO or a socket would replace it (``--out /dev/full`` said "1001 rows" and, as root,
+    replaced the device node with a CSV)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    kind = _kind(mode)
+    if kind is not None:
+        raise TwinError(f'{path} is {kind}; give the name of a regular file (new or to replace)')
+
+
 def _temporary(path: Path) -> Path:
-    if path.is_dir():
-        raise TwinError(f'{path} is a directory; give a file name')
+    refuse_special(path)
     try:
         # the target's suffix kept last: a writer that infers the format from it (matplotlib)
         fd, tmp = new_temporary(path.parent, f'.{path.stem}.', f'.part{path.suffix}')

@@ -82,3 +82,23 @@ def test_an_output_gets_the_umasks_permissions(tmp_path):
         os.umask(old)
     mode = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
     assert mode == {'a.json': 0o644, 'metadata.yaml': 0o644, 'b.json': 0o600}
+
+
+def test_an_output_path_that_is_not_a_regular_file_is_refused(tmp_path, capsys):
+    """A FIFO, a directory or a device as ``--out``: one line, exit 2, the path left as it was
+    (a rename onto it replaced a FIFO with a regular file, and as root /dev/full with a CSV);
+    the library's writers refuse it before writing anything."""
+    import stat
+    fifo = tmp_path / 'p.csv'
+    os.mkfifo(fifo)
+    assert main(['simulate', '--valve-model', 'C2', '--scenario', 'paper',
+                 '--out', str(fifo)]) == 2
+    err = capsys.readouterr().err
+    assert 'is a FIFO' in err and len(err.strip().splitlines()) == 1
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['p.csv']
+    for path, kind in ((tmp_path, 'a directory'), (os.devnull, 'a character device')):
+        with pytest.raises(TwinError, match=kind):
+            with output_file(path) as fh:
+                fh.write('x')
+    assert stat.S_ISCHR(os.lstat(os.devnull).st_mode)
