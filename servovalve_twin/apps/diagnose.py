@@ -14,7 +14,7 @@ from ..errors import TwinError
 from ..outputs import output_path
 from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
                                      diagnose, model_form_estimate)
-from ..prognostics.prognosis import Prognosis, prognose
+from ..prognostics.prognosis import MIN_CYCLES, Prognosis, prognose
 from .plots import plot_overlay
 from .replay import bag_params
 
@@ -122,8 +122,8 @@ def prognose_bags(bags: Sequence[str | Path], fault: str, threshold: float | Non
     """Diagnose ``fault`` on each flight's bag (in order), trend it, predict the RUL."""
     if cycles is not None and len(cycles) != len(bags):
         raise TwinError(f'--cycles gives {len(cycles)} counts for {len(bags)} bags')
-    if len(bags) < 3:
-        raise TwinError(f'a trend needs at least three flights (bags), got {len(bags)}')
+    if len(bags) < MIN_CYCLES:
+        raise TwinError(f'a trend needs at least {MIN_CYCLES} flights (bags), got {len(bags)}')
     history = []
     for i, bag in enumerate(bags):
         d = diagnose_bag(bag, model=model, faults=[fault], window=window)

@@ -319,5 +319,7 @@ def _prognosis_line(p) -> str:
                    f'below the threshold {p.threshold:g}, no trend since: no finite RUL'))
     if p.status == 'past threshold':
         return f'past the threshold {p.threshold:g} already: RUL 0'
+    if p.status == 'too few flights':
+        return 'too few distinct flights for a trend: no RUL'
     return (f'no degradation trend (slope {p.slope_z:.1f} standard errors toward the '
             f'threshold {p.threshold:g}): no finite RUL')
