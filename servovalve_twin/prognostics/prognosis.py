@@ -373,9 +373,9 @@ def _checked(history, fault, threshold):
         raise TwinError('a prognosis needs at least one diagnosed flight, got none')
     spec = FAULTS[fault]
     thr = spec.demo if threshold is None else float(threshold)
-    if not math.isfinite(thr) or thr == spec.healthy:
-        raise TwinError(f'threshold {thr!r} must be a finite severity other than the healthy '
-                        f'{spec.healthy:g}')
+    if not (spec.lo <= thr <= spec.hi) or thr == spec.healthy:
+        raise TwinError(f'threshold {thr!r} {spec.unit} must be a severity of {fault} in '
+                        f'[{spec.lo:g}, {spec.hi:g}] other than the healthy {spec.healthy:g}')
     try:
         cycles = np.array([float(h['cycles']) for h in history])
         sev = np.array([float(h['severity']) for h in history])

@@ -196,7 +196,7 @@ def test_no_history_crashes_prognose():
         span = spec.demo - spec.healthy
         sev = spec.healthy + span * d * rng.uniform(0.2, 1.5) + rng.normal(0, 0.05, m) * span
         hw = np.where(rng.random(m) < 0.2, 0.0, np.abs(rng.normal(0, 0.05, m) * span))
-        thr = spec.healthy + span * rng.uniform(0.5, 1.5)
+        thr = float(np.clip(spec.healthy + span * rng.uniform(0.5, 1.5), spec.lo, spec.hi))
         p = prognose(_hist(cycles, sev, hw), fault, thr, draws=200, seed=i)
         r = p.rul
         assert p.status in ('trend', 'no degradation trend', 'past threshold', 'step change',
@@ -291,3 +291,13 @@ def test_an_accelerating_leak_is_recognised_by_half_of_life():
         assert p.status == 'trend' and p.trend.kind.endswith('exponential')
         assert p.rul['median'] == pytest.approx(true_rul, rel=rel), frac
         assert p.rul['p05'] <= true_rul <= p.rul['p95']
+
+
+@pytest.mark.parametrize('threshold', [-1.0, 0.5, 1.0, 101.0, math.inf, math.nan])
+def test_a_threshold_outside_the_fault_s_range_is_refused(threshold):
+    """A leak's threshold must be a severity the catalog has, [1, 100] x CLk, not the healthy
+    1: -1 was taken (and a unit 'trended' toward it)."""
+    from servovalve_twin.errors import TwinError
+    with pytest.raises(TwinError, match=r'in \[1, 100\]'):
+        prognose(_hist(range(5), [1.0, 1.5, 2, 2.5, 3], [0.1] * 5), 'leakage_growth',
+                 threshold)
