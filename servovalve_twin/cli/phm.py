@@ -181,8 +181,8 @@ class MonitorThresholds(Command):
         import yaml
         from ..physics.valves import get_monitor_model
         from ..prognostics.monitor import DEFAULT_MONITOR_MODEL
-        from ..prognostics.thresholds import (calibrate_thresholds, healthy_peaks,
-                                              monitor_cal_flights)
+        from ..prognostics.thresholds import (MIN_PEAKS, calibrate_thresholds,
+                                              healthy_peaks, monitor_cal_flights)
         model = args.monitor_model or DEFAULT_MONITOR_MODEL
         get_monitor_model(model)
         for name, value in (('--units', args.units), ('--far-error', args.far_error),
@@ -192,12 +192,17 @@ class MonitorThresholds(Command):
                                                                   else '(0, 1)'))
         if not args.far_error <= args.far_warn:
             raise TwinError('--far-error must not exceed --far-warn (ERROR is the rarer level)')
+        if args.units > MAX_UNITS:
+            raise TwinError(f'--units {args.units}: allowed 1 to {MAX_UNITS} per flight')
         out = Path(args.out)
         if out.exists() or out.is_symlink():
             raise TwinError(f'--out {args.out!r} exists; monitor-thresholds writes a new file '
                             'only')
         flights = ({Path(s).stem: s for s in args.scenario} if args.scenario
                    else monitor_cal_flights())
+        if args.units * len(flights) < MIN_PEAKS:
+            raise TwinError(f'--units {args.units} on {len(flights)} flight(s): the thresholds '
+                            f'need at least {MIN_PEAKS} healthy units in all')
         peaks = healthy_peaks((model,), flights, args.units, args.seed)[model]
         th = calibrate_thresholds(peaks, rates={'warn': args.far_warn, 'error': args.far_error})
         text = (f'# monitor thresholds for {model}: healthy HD units ({args.units} per flight, '
@@ -210,6 +215,10 @@ class MonitorThresholds(Command):
         write_new(out, text)
         print(text, end='')
         return 0
+
+
+#: the most healthy units per flight monitor-thresholds flies (1e7 ran for ever)
+MAX_UNITS = 1000
 
 
 class Bit(Command):

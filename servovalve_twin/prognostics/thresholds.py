@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..errors import TwinError
 from ..physics.simulate import effective_params, simulate
 from .monitor import RESIDUALS, HealthConfig, monitor_run
 
@@ -90,10 +91,19 @@ def healthy_peaks(models: Sequence[str], flights: Mapping[str, Any], units: int,
     return peaks
 
 
+#: the fewest healthy peaks a Gumbel law is fitted to (its scale is a sample sd: one peak
+#: gave thresholds of NaN)
+MIN_PEAKS = 2
+
+
 def gumbel_quantile(samples: Sequence[float], exceedance: float) -> float:
     """The value a maximum exceeds with probability ``exceedance``, from a Gumbel law fitted
     to ``samples`` by moments (scale sd*sqrt(6)/pi, location mean - 0.5772*scale)."""
     x = np.asarray(samples, dtype=float)
+    if x.size < MIN_PEAKS or not np.all(np.isfinite(x)):
+        raise TwinError(f'a Gumbel law needs at least {MIN_PEAKS} finite healthy peaks, got '
+                        f'{x.size}{"" if np.all(np.isfinite(x)) else " (not all finite)"}: '
+                        'fly more units or flights')
     beta = float(np.std(x, ddof=1)) * math.sqrt(6.0) / math.pi
     mu = float(np.mean(x)) - 0.5772156649 * beta
     return mu - beta * math.log(-math.log1p(-exceedance))

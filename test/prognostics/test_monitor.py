@@ -4,6 +4,8 @@ without the glitch (the independent reference: the same run, clean)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -147,7 +149,12 @@ def test_monitor_thresholds_command_writes_a_params_file(tmp_path, capsys):
                            (['--far-error', '0.1', '--far-warn', '0.01', '--out',
                              str(tmp_path / 'b.yaml')], 'must not exceed'),
                            (['--monitor-model', 'HD', '--out', str(tmp_path / 'b.yaml')],
-                            'HD')):
+                            'HD'),
+                           # one unit on one flight: a Gumbel law of one peak was NaN
+                           (['--scenario', 'paper', '--units', '1', '--out',
+                             str(tmp_path / 'b.yaml')], 'at least 2 healthy units'),
+                           (['--units', '10000000', '--out', str(tmp_path / 'b.yaml')],
+                            'allowed 1 to 1000')):
         capsys.readouterr()
         assert main(['monitor-thresholds', *args]) == 2
         err = capsys.readouterr().err
@@ -164,3 +171,18 @@ def test_monitor_run_refuses_a_run_its_ecu_would_not_match():
         run = simulate('C2', {'duration': 0.01}, ecu_period=period)
         with pytest.raises(TwinError, match='ecu_period=1e-3'):
             monitor_run(run)
+
+
+def test_a_gumbel_law_of_too_few_peaks_is_refused():
+    """MIN_PEAKS = 2: the scale is a sample sd, NaN of one peak."""
+    from servovalve_twin.errors import TwinError
+    from servovalve_twin.prognostics.thresholds import gumbel_quantile
+    with pytest.raises(TwinError, match='at least 2 finite healthy peaks, got 1'):
+        gumbel_quantile([0.3], 1e-3)
+    with pytest.raises(TwinError, match='not all finite'):
+        gumbel_quantile([0.3, math.nan, 0.2], 1e-3)
+    # two peaks: the moments' law, by hand
+    beta = np.std([1.0, 2.0], ddof=1) * math.sqrt(6) / math.pi
+    mu = 1.5 - 0.5772156649 * beta
+    assert gumbel_quantile([1.0, 2.0], 0.01) == pytest.approx(
+        mu - beta * math.log(-math.log(0.99)))
