@@ -257,11 +257,19 @@ class EhaModel(PrognosticsModel):
         return math.isfinite(n) and n > -1e-6 and abs(n - round(n)) < 1e-6
 
     def apply_limits(self, x):
-        """Each degradation within the catalog's bounds, silently: progpy's own limits warn at
-        every clip, and a random walk at the healthy bound clips at every step."""
+        """Each degradation within the catalog's bounds, and each growth rate on its physical
+        side -- toward the alarm (a leak does not heal: a filter whose process noise carried a
+        rate below 0 on a model that reads the leak low predicted 'never'), silently: progpy's
+        own limits warn at every clip, and a random walk at the healthy bound clips at every
+        step."""
         X = x.matrix
         for i, (lo, hi) in zip(self._i_deg, self._limits):
             np.clip(X[i], lo, hi, out=X[i])
+        for j, f in zip(self._i_rate, self.degradation):
+            if FAULTS[f].demo > FAULTS[f].healthy:
+                np.maximum(X[j], 0.0, out=X[j])
+            else:
+                np.minimum(X[j], 0.0, out=X[j])
         return x
 
     def output(self, x):

@@ -235,3 +235,19 @@ def test_bad_model_arguments_are_named():
     x = m.initialize()
     with pytest.raises(ParameterError, match='whole number of control periods'):
         m.next_state(x, m.InputContainer({'com': 0.0, 'fr': 0.0, 'psr': 2e7}), 1.5e-3)
+
+
+def test_growth_rates_stay_on_their_physical_side():
+    """apply_limits keeps a leak's growth rate >= 0 and a null bias's (its alarm is negative)
+    <= 0: a filter's process noise carried a leak's rate below 0 and its prediction said
+    'never'. The severities stay within the catalog."""
+    m = EhaModel(degradation=['leakage_growth', 'null_bias'])
+    x = m.initialize()
+    X = np.repeat(np.asarray(x.matrix, dtype=float), 3, axis=1)
+    X[m.states.index('leakage_growth_growth')] = [-5.0, 0.0, 7.0]
+    X[m.states.index('null_bias_growth')] = [-1e-3, 0.0, 2e-3]
+    X[m.states.index('leakage_growth')] = [0.5, 3.0, 200.0]
+    out = np.asarray(m.apply_limits(m.StateContainer(X)).matrix)
+    assert out[m.states.index('leakage_growth_growth')].tolist() == [0.0, 0.0, 7.0]
+    assert out[m.states.index('null_bias_growth')].tolist() == [-1e-3, 0.0, 0.0]
+    assert out[m.states.index('leakage_growth')].tolist() == [1.0, 3.0, 100.0]

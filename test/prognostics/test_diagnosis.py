@@ -285,7 +285,11 @@ def test_linear_trend_and_rul_against_hand_computation():
             for n in range(6)]
     p = prognose(hist, 'leakage_growth', 10.0)
     assert p.trend.kind == 'linear'
-    assert p.rul['median'] == pytest.approx(13.0, abs=0.05)
+    line = next(t for t in p.trends if t.kind == 'linear')
+    assert line.crossing(10.0, line.coef[None, :], True)[0] == pytest.approx(18.0, abs=1e-6)
+    # the mixture: a leak's prior lends the accelerating models some weight (a quadratic
+    # with no curvature fits as well), which shortens the median a little
+    assert p.rul['median'] == pytest.approx(13.0, rel=0.01)
     assert p.rul['p05'] <= p.rul['median'] <= p.rul['p95']
     out = p.to_json()
     assert set(out) == {'fault', 'threshold', 'status', 'rul_cycles', 'trend', 'trend_weights',
@@ -309,9 +313,9 @@ def test_exponential_trend_is_chosen_when_it_fits():
     assert p.rul['p05'] <= truth_rul <= p.rul['p95']
 
 
-def test_prognosis_refuses_fewer_than_three_flights():
-    with pytest.raises(TwinError, match='at least three flights'):
-        prognose([dict(cycles=0, severity=1.0, interval=[0.9, 1.1])] * 2, 'leakage_growth')
+def test_prognosis_of_fewer_than_three_flights_says_so():
+    p = prognose([dict(cycles=0, severity=1.0, interval=[0.9, 1.1])] * 2, 'leakage_growth')
+    assert p.status == 'too few flights' and math.isnan(p.rul['median'])
 
 
 @pytest.fixture(scope='module')
@@ -369,7 +373,8 @@ def test_diagnose_cli_writes_the_schema(flights, tmp_path, capsys):
 
 def test_prognose_cli_over_three_flights(flights, tmp_path):
     """Severities 2, 4, 6 at cycles 0, 10, 20 trend linearly to 10 at cycle 40: 20 cycles
-    left after the last flight."""
+    left after the last flight (the median within 5 %: three flights cannot rule out the
+    acceleration a leak's prior expects, which shortens it by 2 %)."""
     _, bags = flights
     out = tmp_path / 'p.json'
     assert main(['prognose', *map(str, bags), '--cycles', '0,10,20', '--threshold',
@@ -378,7 +383,7 @@ def test_prognose_cli_over_three_flights(flights, tmp_path):
     assert j['trend'] == 'linear' and j['threshold'] == 10.0
     assert [h['cycles'] for h in j['history']] == [0.0, 10.0, 20.0]
     assert [h['severity'] for h in j['history']] == pytest.approx([2.0, 4.0, 6.0], rel=5e-3)
-    assert j['rul_cycles']['median'] == pytest.approx(20.0, rel=0.02)
+    assert j['rul_cycles']['median'] == pytest.approx(20.0, rel=0.05)
     assert (tmp_path / 'p.png').stat().st_size > 1000
 
 
@@ -398,7 +403,7 @@ def test_bad_diagnosis_input_is_one_line_and_exit_2(flights, tmp_path, capsys):
         (['diagnose', str(bags[0]), '--json', out, '--bootstrap', '1'], 'at least 20 refits'),
         (['diagnose', str(bags[0]), '--json', out, '--bootstrap', '-2'], 'allowed 0'),
         (['prognose', str(bags[0]), str(bags[1]), '--threshold', 'leakage_growth',
-          '--json', out], 'at least three flights'),
+          '--json', out], 'at least 3 flights'),
         (['prognose', *map(str, bags), '--threshold', 'leakage_growth', '--cycles', '0,1',
           '--json', out], '--cycles gives 2 counts for 3 bags'),
     ]
