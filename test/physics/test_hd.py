@@ -134,3 +134,59 @@ def test_port_pressures_satisfy_both_continuity_equations(xs, frac):
                 else:
                     hi = mid
             assert p1 == pytest.approx(0.5 * (lo + hi), abs=1.0)
+
+
+@pytest.mark.parametrize('c', [1e-8, 1e-9])
+def test_a_critical_centre_characteristic_sweeps_to_merritt(c):
+    """c -> 0 with no leakage, swept through ``characteristic`` (each point warm-started from
+    the last, as a test bench sweeps): a port reaches supply pressure exactly, where an open
+    edge's flow was 0/0 (ZeroDivisionError). Blocked load: P12 = sign(XS)*PSR within 1 %
+    of PSR away from the null, 0 at it; with a load flow: Merritt's PS - rho (QL/(Cd w XS))^2
+    where that is a pressure the valve can hold."""
+    from servovalve_twin.physics.characteristic import characteristic
+    p = DEFAULTS.replace(CLk=0.0, c=c)
+    psr = 20e6
+    q = 0.3 * p.Cd * p.w * 1e-4 * math.sqrt(psr / p.rho)
+    out = characteristic('HD', p, psr, [0.0, q], n_points=101)
+    assert not np.isnan(out['p12']).any()
+    xs, qj, p12 = out['xs'], out['qj'], out['p12']
+    blocked = (qj == 0.0) & (np.abs(xs) > 1e-6)
+    assert np.max(np.abs(p12[blocked] - np.sign(xs[blocked]) * psr)) < 0.01 * psr
+    assert p12[(qj == 0.0) & (xs == 0.0)] == pytest.approx(0.0, abs=1e-6 * psr)
+    with np.errstate(divide='ignore'):
+        merritt = psr - p.rho * q ** 2 / (p.Cd * p.w * xs) ** 2
+    held = (qj == q) & (xs > 0) & (merritt > -psr)
+    assert held.sum() > 20
+    assert np.max(np.abs(p12[held] - merritt[held])) < 0.01 * psr
+
+
+@pytest.mark.slow
+def test_every_model_at_every_parameter_bound_answers_or_refuses():
+    """Each float parameter at its lower (just inside an open one) and upper bound, one at a
+    time, through ``characteristic`` and a 50 ms ``simulate`` of every valve model: a result
+    or a one-line TwinError, never another exception (1752 runs, 51 s here)."""
+    from servovalve_twin.errors import TwinError
+    from servovalve_twin.physics.characteristic import characteristic
+    from servovalve_twin.physics.params import param_table
+    scen = {'duration': 0.05, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.02, 5000.0]],
+            'psr': [[0.0, 2.0e7], [0.04, 1.5e7]]}
+    ran = 0
+    for row in param_table():
+        if row['kind'] != 'float':
+            continue
+        lo, hi = row['lo'], row['hi']
+        for v in (hi, lo + 1e-9 * (hi - lo) if row['lo_open'] else lo):
+            try:
+                p = DEFAULTS.replace(**{row['name']: v})
+            except TwinError:
+                continue            # a cross-parameter rule refuses it: that is an answer
+            for model in VALVE_MODELS:
+                for run in (lambda: characteristic(model, p, min(p.PSRN, 3e7), [0.0],
+                                                   n_points=21),
+                            lambda: simulate(model, scen, params=p)):
+                    try:
+                        run()
+                    except TwinError:
+                        pass
+                    ran += 1
+    assert ran > 1000

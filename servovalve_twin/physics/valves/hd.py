@@ -64,7 +64,10 @@ def edge_resistances(x, P):
 def edge_flow(rl, rt, dp):
     """Flow [m^3/s] through an edge under dp [Pa] and its conductance dQ/ddp."""
     a = abs(dp)
-    q = 2.0 * a / (rl + math.sqrt(rl * rl + 4.0 * rt * a))
+    root = rl + math.sqrt(rl * rl + 4.0 * rt * a)
+    # an open edge (no laminar gap, rl = 0) under no pressure drop passes nothing: 0/0 here
+    # (a critical-centre valve's port at supply pressure) raised ZeroDivisionError
+    q = 2.0 * a / root if root > 0.0 else 0.0
     den = rl + 2.0 * rt * q
     g = 1.0 / den if den > 1.0 / _G_CAP else _G_CAP
     if dp < 0.0:
