@@ -105,6 +105,14 @@ class _Replayer:
         for n in nodes:
             if clock and not n.get_parameter('use_sim_time').value:
                 n.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, True)])
+                # a timer made on wall time keeps its wall-time credit across the switch to
+                # ROS time and rcl restores it at the first jump of the override, moving its
+                # next call to that instant plus its period: the replay's first step (1 ms)
+                # then shifted every firing by 1 ms and lost the last one. That jump is taken
+                # here, before the replay resets the timers at the bag's first instant.
+                for t in (0, 1):
+                    n.get_clock().set_ros_time_override(Time(nanoseconds=t,
+                                                             clock_type=ClockType.ROS_TIME))
             self.executor.add_node(n)
         self._wrap_publishers()
 
