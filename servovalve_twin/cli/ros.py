@@ -119,6 +119,10 @@ class Play(Command):
                        help='start paused (resume with the ~/resume service)')
         p.add_argument('--remap', nargs='+', default=[], metavar='FROM:=TO',
                        help='publish topic FROM as TO')
+        p.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
+                       help='play once every played topic has N matched subscribers (default '
+                            '0: once the subscribers already on the graph are matched, at '
+                            'most 5 s)')
         add_foxglove_option(p)
 
     def main(self, args):
@@ -131,7 +135,8 @@ class Play(Command):
                            exclude_topics=tuple(args.exclude_topics), loop=args.loop,
                            delay=args.delay, start_offset=args.start_offset,
                            playback_duration=args.playback_duration,
-                           start_paused=args.start_paused, remap=tuple(args.remap))
+                           start_paused=args.start_paused, remap=tuple(args.remap),
+                           wait_for_subscribers=args.wait_for_subscribers)
         opts.check()
         stop = []
         old = {sig: signal.signal(sig, lambda *_: stop.append(True))

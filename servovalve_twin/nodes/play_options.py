@@ -28,6 +28,7 @@ class PlayOptions:
     playback_duration: float = 0.0      # 0 = to the end
     start_paused: bool = False
     remap: tuple[str, ...] = ()         # FROM:=TO
+    wait_for_subscribers: int = 0       # play once every topic has this many (0: see below)
 
     def check(self) -> None:
         lo, hi = RATE_RANGE
@@ -41,6 +42,10 @@ class PlayOptions:
             v = getattr(self, name)
             if not 0 <= v <= MAX_SECONDS:
                 raise TwinError(f'{name} must be in [0, {MAX_SECONDS:g}] s, got {v!r}')
+        n = self.wait_for_subscribers
+        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_SUBSCRIBERS:
+            raise TwinError(f'wait_for_subscribers must be a whole number in [0, '
+                            f'{MAX_SUBSCRIBERS}], got {n!r}')
         targets = self.remaps().values()
         if '/clock' in targets:
             raise TwinError('a remap onto /clock is not allowed: /clock carries simulated time '
@@ -62,6 +67,8 @@ RATE_RANGE = (1e-3, 1e6)
 MAX_SECONDS = 1e6
 #: the fastest /clock [Hz]
 MAX_CLOCK_HZ = 1e4
+#: the most subscribers a player may be told to wait for
+MAX_SUBSCRIBERS = 1000
 
 #: the player's parameters: rosbag2's ``ros2 bag play`` options
 OPTION_DOCS = {
@@ -76,6 +83,8 @@ OPTION_DOCS = {
     'playback_duration': 'play this many bag seconds (0: to the end)',
     'start_paused': 'start paused (resume with ~/resume)',
     'remap': 'FROM:=TO topic remappings',
+    'wait_for_subscribers': 'play once every played topic has this many matched subscribers '
+                            '(0: once those already on the graph are matched, at most 5 s)',
 }
 
 
@@ -90,6 +99,9 @@ def typed_option(name: str, value: Any, default: Any) -> Any:
         if isinstance(value, bool):
             return value
         raise TwinError(f'{name} = {value!r}: expected true or false')
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return type(default)(value)
+    if isinstance(default, int) and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if isinstance(default, float) and isinstance(value, (int, float)) and not isinstance(
+            value, bool):
+        return float(value)
     raise TwinError(f'{name} = {value!r}: expected a number')

@@ -340,3 +340,36 @@ def test_the_player_never_outruns_a_reliable_subscriber(ros_context):
     print(f'{result["published"]} published in {result["wall_s"]:.2f} s; received {counts}')
     assert result['published'] == len(topics) * expected and not result['warnings']
     assert counts == {t: expected for t in topics}
+
+
+def test_the_player_waits_for_its_subscribers_before_the_first_message(ros_context):
+    """--wait-for-subscribers 1 at -r 1000: a reliable subscriber started in another process
+    just before receives all 1001 messages of each topic, the first included -- without a
+    wait the first 0.2 s of the bag went out before it had matched (800 of 1001, 1 run in
+    4). The player itself, not the test, waits for the match."""
+    import json
+    from servovalve_twin.nodes.player import play
+    bag = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
+    info = open_any_bag(bag).topics
+    topics = ['/xj', '/p12']
+    expected = info['/xj'].count
+    sub = subprocess.Popen([sys.executable, '-c', SLOW_SUBSCRIBER, ','.join(topics),
+                            str(expected)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True)
+    try:
+        assert sub.stdout.readline().strip() == 'ready', sub.stderr.read()
+        result = play(bag, PlayOptions(rate=1000.0, topics=tuple(topics),
+                                       wait_for_subscribers=1), context=ros_context)
+        out, err = sub.communicate(timeout=120)
+    finally:
+        sub.kill()
+    counts = json.loads(out.strip().splitlines()[-1])
+    assert counts == {t: expected for t in topics}
+    assert result['published'] == 2 * expected
+
+
+@pytest.mark.parametrize('n', [-1, 1.5, True, 10_000])
+def test_wait_for_subscribers_takes_a_whole_count(n):
+    from servovalve_twin.errors import TwinError
+    with pytest.raises(TwinError, match='wait_for_subscribers must be a whole number'):
+        PlayOptions(wait_for_subscribers=n).check()
