@@ -263,6 +263,23 @@ class PlotRows:
                       for c in self.parts[0][side]} for side in (0, 1))
 
 
+def coverage(metrics: Mapping[str, Any], ref_span_ms: int) -> dict[str, Any]:
+    """How much of the reference a comparison covers: the 1 ms rows common to both runs
+    (:func:`compare_bags`' whole-run count) against the reference's own rows."""
+    common = max((m['n'] for m in metrics.get('all', {}).values()), default=0)
+    rows = int(ref_span_ms) + 1
+    return dict(common_rows=common, reference_rows=rows, fraction=common / rows)
+
+
+def coverage_warning(cov: Mapping[str, Any]) -> str | None:
+    """One line when the run covers less than the whole reference (a run cut short, a bag
+    reindexed after a kill): its errors say nothing of the rest."""
+    if cov['common_rows'] >= cov['reference_rows']:
+        return None
+    return (f'the run covers {cov["common_rows"]} of the reference\'s {cov["reference_rows"]} '
+            f'1 ms rows ({cov["fraction"]:.1%}): the errors say nothing of the rest')
+
+
 def exceeded(metrics: Mapping[str, Any], tolerances: Mapping[str, float]) -> list[str]:
     """Descriptions of every whole-run max error above its tolerance (signal -> SI value)."""
     bad = []

@@ -21,12 +21,14 @@ class Compare(Command):
         p.add_argument('--json', metavar='FILE', help='the metrics as JSON')
         p.add_argument('--tolerance', action='append', default=[], metavar='SIGNAL=MAX',
                        help='exit 1 when the whole-run max error of SIGNAL (xj, dxj, p12, xs, '
-                            'cor; SI units) exceeds MAX (repeatable)')
+                            'cor; SI units) exceeds MAX, or the run covers less than the '
+                            'reference (repeatable)')
 
     def main(self, args):
-        from ..apps.compare import (PlotRows, compare_bags, exceeded, format_table,
-                                    parse_tolerances, provenance_differences, run_span_ms,
-                                    run_windows, write_json)
+        from ..apps.compare import (PlotRows, compare_bags, coverage, coverage_warning,
+                                    exceeded, format_table, parse_tolerances,
+                                    provenance_differences, run_span_ms, run_windows,
+                                    write_json)
         from ..apps.plots import plot_overlay
         tolerances = parse_tolerances(args.tolerance)
         # block by block, in memory that does not grow with the bags (a table is held whole);
@@ -34,13 +36,18 @@ class Compare(Command):
         windows = run_windows(args.ref)
         for line in provenance_differences(args.ref, args.run):
             print(f'servovalve-twin compare: warning: {line}', file=sys.stderr)
-        rows = PlotRows(run_span_ms(args.ref)) if args.plot else None
+        span_ms = run_span_ms(args.ref)
+        rows = PlotRows(span_ms) if args.plot else None
         metrics = compare_bags(args.ref, args.run, windows, plot=rows)
+        cov = coverage(metrics, span_ms)
+        short = coverage_warning(cov)
+        if short:
+            print(f'servovalve-twin compare: warning: {short}', file=sys.stderr)
         print(f'{args.run} against {args.ref} (errors run - ref, RMS / max):')
         print(format_table(metrics))
         if args.json:
             write_json(args.json, dict(ref=str(args.ref), run=str(args.run), windows=windows,
-                                       metrics=metrics, tolerances=tolerances))
+                                       metrics=metrics, tolerances=tolerances, coverage=cov))
         if args.plot:
             named = {k: v for k, v in windows.items() if not k.startswith('phase')}
             ref, run = rows.runs()
@@ -48,6 +55,8 @@ class Compare(Command):
                          reference=Path(args.ref).stem, title=f'{Path(args.run).stem} against '
                          f'{Path(args.ref).stem}', windows=named, inputs=True)
         bad = exceeded(metrics, tolerances)
+        if tolerances and short:
+            bad.append(short)            # a tolerance holds over the reference, not a part
         for line in bad:
             print(f'tolerance exceeded: {line}')
         return 1 if bad else 0

@@ -118,9 +118,23 @@ class Diagnose(Command):
         return 0
 
 
+#: a fit worse than this share of the calibration's right fits is called poor on the line
+POOR_FIT_P = 0.05
+
+
 def _verdict_line(d) -> str:
     """The diagnosis in words: the verdict, or each fault's severity and interval (and the
-    onset when fitted)."""
+    onset when fitted), the hypotheses that fit as well, and a poor fit said as such."""
+    what = _answer(d)
+    if d.rivals:
+        what += f'; also consistent with {", ".join(d.rivals)}'
+    if not d.verdict and d.p_value is not None and d.p_value < POOR_FIT_P:
+        what += (f'; poor fit: RMS {d.fit_rms:.3g} of the residual scales, worse than '
+                 f'{1 - d.p_value:.1%} of right fits in the calibration')
+    return what
+
+
+def _answer(d) -> str:
     b = d.best
     if d.verdict:
         return f'{d.verdict} (best candidate: {b.fault})'

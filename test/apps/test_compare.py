@@ -140,3 +140,27 @@ def test_the_figure_of_a_long_run_keeps_each_bins_extremes(tmp_path, monkeypatch
     assert a['t'].tolist() == want_t and len(want_t) == 2 * 49
     for c, v in want.items():
         assert a[c].tolist() == v and b[c].tolist() == v, c
+
+
+def test_a_run_that_covers_half_the_reference_says_so(tmp_path, capsys):
+    """A run cut to its first half against the whole: a warning line with the rows covered,
+    the JSON's coverage, and --tolerance failing on it even where every error is 0 (rc 0,
+    'all 0 / 0' before: no word that half the reference was not compared)."""
+    import json
+    from servovalve_twin.cli import main
+    full = tmp_path / 'full.csv'
+    assert main(['simulate', '--valve-model', 'C2', '--scenario', 'paper',
+                 '--out', str(full)]) == 0
+    lines = full.read_text().splitlines(keepends=True)
+    half = tmp_path / 'half.csv'
+    half.write_text(''.join(lines[:1 + 501]))           # header + rows 0 .. 500 ms
+    capsys.readouterr()
+    out = tmp_path / 'c.json'
+    rc = main(['compare', str(full), str(half), '--json', str(out), '--tolerance', 'xj=1e-9'])
+    cap = capsys.readouterr()
+    assert "covers 501 of the reference's 1001 1 ms rows (50.0%)" in cap.err
+    assert rc == 1 and 'tolerance exceeded: the run covers 501' in cap.out
+    cov = json.loads(out.read_text())['coverage']
+    assert cov == dict(common_rows=501, reference_rows=1001, fraction=501 / 1001)
+    assert main(['compare', str(full), str(full), '--tolerance', 'xj=1e-9']) == 0
+    assert 'covers' not in capsys.readouterr().err

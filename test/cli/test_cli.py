@@ -125,3 +125,23 @@ def test_the_verdict_line_states_the_onset_and_its_confidence():
     d.onset = dict(t=0.0, interval=[0.0, 0.36], identifiable=False, confidence=0.95)
     assert _verdict_line(d).endswith('begun between 0.000 and 0.360 s (the run cannot tell '
                                      'when)')
+
+
+def test_the_diagnosis_line_names_rivals_and_a_poor_fit():
+    """diagnose's one line: a 10 x leak read as a supply loss with RMS 30 and two rivals in
+    the JSON showed neither on the line."""
+    from types import SimpleNamespace
+    from servovalve_twin.cli.phm import _verdict_line
+    best = SimpleNamespace(fault='supply_loss', faults=('supply_loss',), severity=0.7492,
+                           severities=(0.7492,), intervals=((0.7333, 0.7652),))
+    d = SimpleNamespace(best=best, verdict=None, confidence=0.95, onset=None,
+                        rivals=['clearance_growth', 'leakage_growth'], p_value=0.004,
+                        fit_rms=30.0)
+    line = _verdict_line(d)
+    assert line.startswith('supply_loss, severity 0.7492 (95 % [0.7333, 0.7652])')
+    assert '; also consistent with clearance_growth, leakage_growth' in line
+    assert '; poor fit: RMS 30 of the residual scales, worse than 99.6% of right fits' in line
+    d.rivals, d.p_value = [], 0.5
+    assert _verdict_line(d) == 'supply_loss, severity 0.7492 (95 % [0.7333, 0.7652])'
+    d.p_value = 0.049                   # POOR_FIT_P = 0.05
+    assert 'poor fit' in _verdict_line(d)
