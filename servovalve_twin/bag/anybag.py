@@ -114,6 +114,12 @@ def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
                 files = sorted(p.glob('*' + s.suffix))
                 if files:
                     break
+            special = [f for f in files if not f.is_file()]
+            if special:
+                # a FIFO (or a device) named like a storage file blocked every reader on
+                # its first read
+                raise BagError(f'bag {str(p)!r}: {special[0].name} is not a regular file; a '
+                               'storage file must be one')
             if not files:
                 raise BagError(f'no bag at {str(p)!r}: no metadata.yaml or storage file ('
                                + ', '.join(s.suffix for s in STORAGES.values()) + ')')

@@ -283,6 +283,23 @@ def test_a_huge_or_deep_metadata_file_is_refused(tmp_path, capsys):
     assert 'MiB' in capsys.readouterr().err
 
 
+@pytest.mark.parametrize('name', ['x_0.mcap', 'x_0.db3'])
+def test_a_storage_file_that_is_a_fifo_is_refused_not_read(tmp_path, capsys, name):
+    """A bag directory holding a FIFO named like a storage file: compare and evaluate blocked
+    on it for ever (play for 18 min); now one line naming it, exit 2 -- and the FIFO is never
+    opened (opening a FIFO for reading blocks until a writer comes)."""
+    import os
+    d = tmp_path / 'd'
+    d.mkdir()
+    os.mkfifo(d / name)
+    for argv in (['compare', '@paper_HD', str(d)],
+                 ['evaluate', str(d), '--algorithm',
+                  'servovalve_twin.prognostics.monitor:MonitorAlgorithm']):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f'{name} is not a regular file' in err and err.count('\n') == 1, err
+
+
 def test_a_sqlite3_bag_is_read_without_writing_beside_it(layouts, tmp_path):
     """A rosbag2 sqlite3 bag in WAL journal mode, in a directory whose name needs quoting in
     a URI: read by the one reader, nothing appears beside it (mode=ro alone left -shm and
