@@ -87,6 +87,11 @@ def load_yaml_text(text: str, what: str) -> Any:
     except yaml.YAMLError as exc:
         raise ScenarioError(f'{what} is not valid YAML: {str(exc).splitlines()[0][:200]}'
                             ) from None
+    except RecursionError:                  # [[[... 100 000 deep was a traceback
+        raise ScenarioError(f'{what} is nested too deeply') from None
+    except ValueError as exc:               # an integer of more than 4300 digits
+        raise ScenarioError(f'{what} holds a value that cannot be read: {str(exc)[:80]}'
+                            ) from None
 
 
 _BUILTIN: dict[tuple[str, int, int, str], Scenario] = {}

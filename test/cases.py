@@ -56,6 +56,9 @@ FILES: dict[str, bytes | str] = {
     'windows_list.yaml': 'windows: [[0.1, 0.2]]\n',
     'windows_number.yaml': 'windows: 3\n',
     'bomb.yaml': ALIAS_BOMB,
+    'deep.yaml': 'duration: 1\ncom: ' + '[' * 100_000 + ']' * 100_000 + '\n',
+    'bigcount/metadata.yaml': 'rosbag2_bagfile_information:\n  message_count: 1' + '0' * 5000
+                              + '\n',
     'negative_psr.yaml': 'psr: [[0.0, -2.0e+7]]\n',
     'huge_psr.yaml': 'psr: [[0.0, 1.0e+300]]\n',
     'long.yaml': 'duration: 1.0e+6\n',
@@ -151,6 +154,18 @@ BAD_COMMANDS = [
          '--draws must be >= 0'),
     _row(['sweep', '--fault', 'leakage_growth:5', '--repeats', '-1', '--out', 's'],
          '--repeats must be >= 1'),
+    _row(['sweep', '--fault', 'leakage_growth:5', '--seed', '-1', '--out', 's'],
+         '--seed must be an integer in [0, 2**63 - 1], got -1'),
+    _row(['sweep', '--fault', 'leakage_growth:5', '--scheduler', '::::', '--out', 's'],
+         "--scheduler '::::' is not an address"),
+    _row(['run', '--valve-model', 'C2', '--clock-period', '1e308', '--no-bag'],
+         'clock_period = 1e+308: expected seconds in [1e-06, 1000]', _ROS),
+    _row(['run', '--valve-model', 'C2', '--real-time-factor', '1e-300', '--no-bag'],
+         'real_time_factor = 1e-300: expected a factor in [0.001, 1e+06]', _ROS),
+    _row(['run', '--valve-model', 'C2', '--followers', '100000000000000000000', '--no-bag'],
+         'followers = 100000000000000000000: expected a count in [0, 1000]', _ROS),
+    _row(_SIM + ['--scenario', 'deep.yaml', '--out', 'x.csv'], 'is nested too deeply'),
+    _row(['compare', '@paper_HD', 'bigcount'], 'not readable YAML (a value that cannot be read'),
     # bags
     _row(['compare', '@nope', '@paper_HD'], "unknown reference bag '@nope'"),
     # algorithms

@@ -221,7 +221,8 @@ def _read_metadata(d: Path) -> dict[str, Any] | None:
     try:
         raw = safe_load(f.read_text(encoding='utf-8'))
     except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
-        raise BagError(f'{str(f)!r} is not readable YAML ({type(exc).__name__})') from None
+        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:100]
+        raise BagError(f'{str(f)!r} is not readable YAML ({why})') from None
     info = raw.get('rosbag2_bagfile_information') if isinstance(raw, dict) else None
     if not isinstance(info, dict):
         raise BagError(f'{str(f)!r} has no rosbag2_bagfile_information: not a rosbag2 bag')

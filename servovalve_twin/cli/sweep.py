@@ -65,6 +65,11 @@ class Sweep(Command):
             raise TwinError(f'--repeats must be >= 1, got {args.repeats}')
         if args.workers is not None and args.workers < 1:
             raise TwinError(f'--workers must be >= 1, got {args.workers}')
+        if not 0 <= args.seed < 2 ** 63:
+            raise TwinError(f'--seed must be an integer in [0, 2**63 - 1], got {args.seed}')
+        if args.scheduler:
+            from ..prognostics.sweep import check_scheduler
+            check_scheduler(args.scheduler)
         cases = make_cases(plant_model=args.plant_model,
                            monitor_model=args.monitor_model or DEFAULT_MONITOR_MODEL,
                            scenario=args.scenario, faults=grid, ranges=ranges,

@@ -166,13 +166,10 @@ def parse_sensors(text: str):
     from ..physics.sensors import sensors_from_dict
     if not text.strip():
         return None
-    import yaml
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        why = ' '.join(str(exc).split())[:120]
-        raise TwinError(f'parameter sensors: not a YAML mapping ({why})') from None
-    return sensors_from_dict(raw, 'parameter sensors')
+    from ..config import load_yaml_text
+    # the scenario files' loader: no aliases (a live parameter is as hostile as a file), and
+    # nesting or a huge number refused in one line
+    return sensors_from_dict(load_yaml_text(text, 'parameter sensors'), 'parameter sensors')
 
 
 def sensors_text(sensors) -> str:

@@ -211,6 +211,24 @@ def run_cases(cases: Sequence[Case], *, workers: int | None = None,
                   key=lambda r: r['row']['run_id'])
 
 
+def bad_scheduler(scheduler: str, exc: Exception) -> str:
+    return (f'--scheduler {scheduler!r} is not an address (expected tcp://HOST:PORT): '
+            f'{str(exc)[:100]}')
+
+
+def check_scheduler(scheduler: str) -> None:
+    """Refuse a Dask scheduler address that is no address at all ('::::'), before anything
+    is written."""
+    try:
+        from distributed.comm.addressing import parse_address, parse_host_port
+    except ImportError:
+        return                  # iter_results says what to install
+    try:
+        parse_host_port(parse_address(scheduler)[1])
+    except ValueError as exc:
+        raise TwinError(bad_scheduler(scheduler, exc)) from None
+
+
 def iter_results(cases: Sequence[Case], *, workers: int | None = None,
                  scheduler: str | None = None, traces: bool = True
                  ) -> Iterator[dict[str, Any]]:
@@ -230,6 +248,8 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
             client = Client(scheduler, timeout=10)
         except (OSError, TimeoutError) as exc:
             raise TwinError(f'cannot reach the Dask scheduler at {scheduler}: {exc}') from None
+        except ValueError as exc:           # '::::' is no address at all
+            raise TwinError(bad_scheduler(scheduler, exc)) from None
         try:
             futures = client.map(run_case, cases, [traces] * len(cases), pure=False)
             for f in progress(futures, total=len(futures), desc='sweep', unit='run'):

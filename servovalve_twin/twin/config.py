@@ -31,9 +31,24 @@ def _positive(name: str, v: Any) -> float:
     return float(v)
 
 
+def _bounded(lo: float, hi: float, what: str) -> Callable[[str, Any], float]:
+    """A positive number within [lo, hi]: a period or factor the twin turns into integer
+    nanoseconds or a wall-clock wait (1e308 s overflowed; a factor of 1e-300 ran for ever)."""
+    def check(name: str, v: Any) -> float:
+        v = _positive(name, v)
+        if not lo <= v <= hi:
+            raise TwinError(f'{name} = {v!r}: expected {what} in [{lo:g}, {hi:g}]')
+        return v
+    return check
+
+
+#: the most twins a clock owner may wait for
+MAX_FOLLOWERS = 1000
+
+
 def _count(name: str, v: Any) -> int:
-    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-        raise TwinError(f'{name} = {v!r}: expected a count >= 0')
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_FOLLOWERS:
+        raise TwinError(f'{name} = {v!r}: expected a count in [0, {MAX_FOLLOWERS}]')
     return v
 
 
@@ -94,11 +109,12 @@ class TwinConfig:
     control_period: float = option(1e-3, 'lockstep period [s] (default 0.001; must divide '
                                    '1 ms)', _positive, metavar='S')
     clock_period: float = option(1e-2, '/clock publication period in simulated time [s] '
-                                 '(default 0.01)', _positive, metavar='S')
+                                 '(default 0.01)', _bounded(1e-6, 1e3, 'seconds'),
+                                 metavar='S', cli=dict(type=float))
     real_time_factor: float | None = option(
         None, 'pace simulated time to X simulated seconds per wall second (1: real time), '
         'so that ordinary use_sim_time nodes beside the twin keep up; default: as fast as '
-        'possible', _positive, metavar='X')
+        'possible', _bounded(1e-3, 1e6, 'a factor'), metavar='X', cli=dict(type=float))
     namespace: str = option('', "the actuator's namespace: its nodes and topics under /NS "
                             '(/NS/xj), so that several actuators share one graph; /clock '
                             'stays global', _text, metavar='NS')
