@@ -54,7 +54,8 @@ class Sweep(Command):
         import time
         from ..prognostics.monitor import DEFAULT_MONITOR_MODEL
         from ..prognostics.dataset import SweepStopped, write_dataset
-        from ..prognostics.sweep import iter_results, make_cases, parse_fault_specs, parse_vary
+        from ..prognostics.sweep import (iter_results, make_cases, parse_fault_specs,
+                                         parse_vary, restore_signals, stop_on_signals)
         grid, ranges = parse_fault_specs(args.fault)
         if ranges and not args.draws:
             raise TwinError('a fault range NAME:LO~HI needs --draws N')
@@ -78,7 +79,9 @@ class Sweep(Command):
                            base=overrides(args), algorithm=args.algorithm,
                            algorithm_params=algorithm_params(args))
         t0 = time.perf_counter()
-        # streamed: each run's row (and traces) goes to the dataset as it arrives
+        # streamed: each run's row (and traces) goes to the dataset as it arrives; SIGTERM
+        # and SIGHUP stop it as Ctrl-C does
+        old = stop_on_signals()
         try:
             summary = write_dataset(Path(args.out), iter_results(
                 cases, workers=args.workers, scheduler=args.scheduler, traces=args.traces),
@@ -86,6 +89,8 @@ class Sweep(Command):
         except SweepStopped as exc:
             print(f'servovalve-twin sweep: {exc}', file=sys.stderr)
             return exc.code
+        finally:
+            restore_signals(old)
         wall = time.perf_counter() - t0
         files = 'dataset.csv, dataset.parquet, ' + ('traces.npz, ' if args.traces else '')
         print(f'{len(cases)} runs in {wall:.1f} s ({len(cases) / wall:.1f} runs/s) -> '

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import TwinError
 from ..outputs import output_file, output_path
+from .sweep import SchedulerLost
 
 
 class SweepStopped(TwinError):
@@ -46,11 +47,15 @@ def write_dataset(out: Path, results: Iterable[Mapping[str, Any]], total: int | 
     rows: list[dict[str, Any]] = []
     npz = stream = writer = None
     stopped = None
+    # the rows and traces stream into hidden files renamed into place once whole: a sweep
+    # killed outright (SIGKILL, a power cut) leaves no dataset.csv or traces.npz that is a
+    # part of one (it left a traces.npz that was not a zip file)
+    csv_part, npz_part = out / '.dataset.csv.part', out / '.traces.npz.part'
     try:
         for r in results:
             row = dict(r['row'])
             if writer is None:
-                stream = open(out / 'dataset.csv', 'x', newline='', encoding='utf-8')
+                stream = open(csv_part, 'x', newline='', encoding='utf-8')
                 writer = csv.DictWriter(stream, fieldnames=list(row))
                 writer.writeheader()
             writer.writerow(row)
@@ -58,19 +63,26 @@ def write_dataset(out: Path, results: Iterable[Mapping[str, Any]], total: int | 
             rows.append(row)
             if r.get('traces'):
                 if npz is None:
-                    npz = zipfile.ZipFile(out / 'traces.npz', 'x', zipfile.ZIP_DEFLATED)
+                    npz = zipfile.ZipFile(npz_part, 'x', zipfile.ZIP_DEFLATED)
                 for k, v in r['traces'].items():
                     # the .npy members np.savez_compressed writes, one at a time
                     with npz.open(f'run{row["run_id"]}_{k}.npy', 'w', force_zip64=True) as fh:
                         np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
-    except KeyboardInterrupt:
-        stopped = ('interrupted', 130)
+    except KeyboardInterrupt as exc:
+        # Ctrl-C, or SIGTERM / SIGHUP (:class:`.sweep.Signalled`): 128 + the signal
+        signum = getattr(exc, 'signum', 2)
+        stopped = ('interrupted' if signum == 2 else f'stopped by {exc}', 128 + signum)
     except BrokenProcessPool:
         stopped = ('a worker process died (killed?)', 2)
+    except SchedulerLost as exc:
+        stopped = (str(exc), 2)
     finally:
         for f in (npz, stream):
             if f is not None:
                 f.close()
+    csv_part.unlink(missing_ok=True)            # _complete writes it anew, in run order
+    if npz is not None:
+        npz_part.replace(out / 'traces.npz')
     summary = _complete(out, rows)
     if stopped:
         what, code = stopped

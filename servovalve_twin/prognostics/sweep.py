@@ -250,10 +250,16 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
             raise TwinError(f'cannot reach the Dask scheduler at {scheduler}: {exc}') from None
         except ValueError as exc:           # '::::' is no address at all
             raise TwinError(bad_scheduler(scheduler, exc)) from None
+        from concurrent.futures import CancelledError
         try:
             futures = client.map(run_case, cases, [traces] * len(cases), pure=False)
             for f in progress(futures, total=len(futures), desc='sweep', unit='run'):
-                yield _dask_result(client, f, scheduler)
+                try:
+                    yield _dask_result(client, f, scheduler)
+                except (CancelledError, OSError) as exc:
+                    # the scheduler went away: its futures are cancelled (a traceback, rc 1)
+                    raise SchedulerLost(f'lost the Dask scheduler at {scheduler} '
+                                        f'({type(exc).__name__})') from None
         finally:
             client.close()
         return
@@ -268,9 +274,7 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
     rest = cases[1:]
     ctx = multiprocessing.get_context('fork') if 'fork' in \
         multiprocessing.get_all_start_methods() else None
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
-                               initializer=signal.signal,
-                               initargs=(signal.SIGINT, signal.SIG_IGN))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
     try:
         yield from progress(_as_finished(pool, rest, traces, 4 * workers),
                             total=len(cases), initial=1, desc='sweep', unit='run')
@@ -278,6 +282,53 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
         # an early end (Ctrl-C, a lost worker): the runs not started are dropped and only
         # those running are waited for -- one run each, not the whole queue
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+class Signalled(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where Ctrl-C would be, so that a sweep stopped by
+    ``docker stop``, systemd or a CI time-out ends as an interrupted one does: its workers
+    with it, what finished written whole. ``signum``: the signal."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_signalled(signum, _frame):
+    raise Signalled(signum)
+
+
+def stop_on_signals() -> dict:
+    """SIGTERM and SIGHUP raise :class:`Signalled` in the main thread (what they did: end the
+    process at once, its pool workers left running with PPID 1 and its outputs half
+    written); returns the handlers replaced, for :func:`restore_signals`."""
+    return {sig: signal.signal(sig, _raise_signalled) for sig in (signal.SIGTERM, signal.SIGHUP)}
+
+
+def restore_signals(old: Mapping) -> None:
+    for sig, handler in old.items():
+        signal.signal(sig, handler)
+
+
+def _worker_init() -> None:
+    """A pool worker: Ctrl-C is the parent's to decide (it stops the runs not started and
+    waits for these); SIGTERM and SIGHUP end it; and it ends with its parent (Linux's
+    parent-death signal), so that a parent killed outright (SIGKILL) leaves no worker."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)           # PR_SET_PDEATHSIG
+        if os.getppid() == 1:                   # the parent died before the call
+            os._exit(1)
+    except (OSError, AttributeError):           # not Linux: the pool's own shutdown serves
+        pass
+
+
+class SchedulerLost(TwinError):
+    """The Dask scheduler went away mid-sweep: the runs it had not returned are lost."""
 
 
 def _as_finished(pool: ProcessPoolExecutor, cases: Sequence[Case], traces: bool,

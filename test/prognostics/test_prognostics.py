@@ -355,46 +355,75 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (a zombie does not)."""
+    try:
+        with open(f'/proc/{pid}/stat') as fh:
+            return fh.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+STOPS = {'SIGINT to the parent': 130, 'SIGTERM to the parent': 143,
+         'SIGHUP to the parent': 129, 'SIGKILL to a worker': 2, 'SIGKILL to the parent': -9}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize('how', ['SIGINT to the parent', 'SIGKILL to a worker'])
+@pytest.mark.parametrize('how', list(STOPS))
 def test_a_sweep_stopped_by_a_signal_keeps_its_finished_runs(tmp_path, how):
-    """The CLI on a 2-worker pool, stopped once runs have reached dataset.csv: Ctrl-C (the
-    parent alone: it was swallowed, rc 0) ends it with 130 at once; a killed worker (a
-    BrokenProcessPool traceback) with 2 -- one line each, and the dataset holds every run
-    that had finished, each once, in run order."""
+    """The CLI on a 2-worker pool, stopped once runs have streamed in: Ctrl-C, SIGTERM
+    (docker stop, systemd, a CI time-out) or SIGHUP to the parent end it with 128 + the
+    signal, a killed worker (a BrokenProcessPool traceback) with 2 -- one line each, the
+    dataset holding every run that had finished, each once, in run order -- and no worker
+    outlives it. SIGTERM ended the parent at once (rc -15, nothing printed) with the workers
+    left running under PPID 1 and a traces.npz that was no zip file; a parent killed outright
+    (SIGKILL) leaves no worker either (the parent-death signal) and no dataset file that is
+    a part of one."""
     import os
     import signal
     import subprocess
     import sys
     import time
     out = tmp_path / 's'
+    stream = out / '.dataset.csv.part'
     # Ctrl-C's disposition as a terminal gives it: a shell's background job (`cmd &`, as a
     # CI script may start the suite) inherits SIGINT ignored, and Python then keeps it so
     proc = subprocess.Popen([sys.executable, '-m', 'servovalve_twin.cli', 'sweep', '--fault',
                              'leakage_growth:5', '--repeats', '5000', '--nominal', '0',
-                             '--workers', '2', '--out', str(out)],
+                             '--workers', '2', '--traces', '--out', str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 300
-        while not (out / 'dataset.csv').exists() or \
-                (out / 'dataset.csv').read_text().count('\n') < 8:
+        while not stream.exists() or stream.read_text().count('\n') < 8:
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.05)
-        if how.startswith('SIGINT'):
-            proc.send_signal(signal.SIGINT)
+        workers = _children(proc.pid)
+        assert len(workers) >= 2
+        if how == 'SIGKILL to a worker':
+            os.kill(workers[0], signal.SIGKILL)
         else:
-            os.kill(_children(proc.pid)[0], signal.SIGKILL)
+            proc.send_signal(getattr(signal, how.split()[0]))
         _, err = proc.communicate(timeout=120)
     finally:
         proc.kill()
     print(err.strip())
-    assert proc.returncode == (130 if how.startswith('SIGINT') else 2)
+    assert proc.returncode == STOPS[how]
+    deadline = time.monotonic() + 30
+    while any(_alive(w) for w in workers):
+        assert time.monotonic() < deadline, f'workers outlived the sweep: {workers}'
+        time.sleep(0.05)
+    if how == 'SIGKILL to the parent':
+        assert not (out / 'dataset.csv').exists() and not (out / 'traces.npz').exists()
+        return
     assert err.count('\n') == 1 and 'Traceback' not in err and 'of 5000 runs' in err
     with open(out / 'dataset.csv', newline='') as fh:
         ids = [int(r['run_id']) for r in csv.DictReader(fh)]
     assert 7 <= len(ids) < 5000 and ids == sorted(set(ids))
     assert f'after {len(ids)} of 5000 runs' in err
+    with np.load(out / 'traces.npz') as npz:
+        assert {int(f.split('_')[0][3:]) for f in npz.files} == set(ids)
+    assert not list(out.glob('.*.part'))
 
 
 def test_a_sweep_gives_each_run_its_own_sensor_noise():
