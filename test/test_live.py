@@ -234,3 +234,72 @@ def test_the_address_is_printed(capfd, monkeypatch):
             in err
     finally:
         live.close(drain_s=1)
+
+
+def _raw_handshake(port, extra):
+    """The status of a hand-written upgrade request with the header lines ``extra``."""
+    lines = ['GET / HTTP/1.1', *extra, 'Upgrade: websocket', 'Connection: Upgrade',
+             'Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==', 'Sec-WebSocket-Version: 13',
+             'Sec-WebSocket-Protocol: foxglove.sdk.v1']
+    with socket.create_connection(('127.0.0.1', port), timeout=60) as s:
+        s.sendall(('\r\n'.join(lines) + '\r\n\r\n').encode())
+        head = s.recv(4096)
+    return int(head.split(b' ')[1])
+
+
+def test_repeated_host_or_origin_headers_are_refused(live):
+    """Two Host or two Origin headers: 403 from the check (HTTP 500 from an exception)."""
+    p = live.port
+    ok = f'Host: 127.0.0.1:{p}'
+    assert _raw_handshake(p, [ok]) == 101
+    assert _raw_handshake(p, [ok, ok]) == 403
+    assert _raw_handshake(p, [ok, 'Origin: file://', 'Origin: file://']) == 403
+    assert live.refused.count == 2
+
+
+@pytest.mark.parametrize('live', [{'max_clients': 3}], indirect=True)
+def test_connections_past_the_limit_get_503(live):
+    """MAX_CLIENTS (here 3) served at once; the next handshake is answered 503, and a place
+    that frees is taken again."""
+    clients = [Client(live.port, '/xj', 1) for _ in range(3)]
+    for c in clients:
+        c.start()
+    deadline = time.monotonic() + 60
+    while len(live._clients) < 3:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    assert handshake(live.port) == 503
+    live.log('/xj', value(1), 1)             # each client has its one message and leaves
+    for c in clients:
+        c.join(60)
+    while live._clients:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    assert handshake(live.port) == 101
+
+
+@pytest.mark.parametrize('live', [{'backlog': 4, 'block': True, 'send_deadline': 3.0}],
+                         indirect=True)
+def test_a_viewer_that_never_reads_is_disconnected_not_waited_for(live, capfd):
+    """A played bag (the producer waits for its viewers) and a client that subscribes and
+    then reads nothing: once its queue is full and it has taken nothing for the send
+    deadline, it is disconnected with one line and the producer goes on -- it waited without
+    bound. A second client that reads gets every message."""
+    hold = threading.Event()
+    silent = Client(live.port, '/xj', 10 ** 6, hold=hold)
+    silent.start()
+    assert live.subscribed.wait(60), silent.error
+    reader = Client(live.port, '/xj', 400)
+    reader.start()
+    deadline = time.monotonic() + 60
+    while len(live._targets.get(live.channels['/xj']['id'], ())) < 2:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    big = value(0) + bytes(1 << 16)               # 64 KiB: the socket's buffers fill soon
+    for i in range(400):
+        live.log('/xj', big, i)
+    reader.join(60)
+    hold.set()
+    assert live.slow_clients == 1
+    assert len(reader.got) == 400 and [g[1] for g in reader.got] == list(range(400))
+    assert 'disconnected a client that took nothing' in capfd.readouterr().err

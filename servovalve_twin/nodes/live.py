@@ -65,6 +65,13 @@ ORIGINS_ENV = 'SERVOVALVE_TWIN_FOXGLOVE_ORIGINS'
 BACKLOG = 1 << 15
 #: how long :meth:`FoxgloveLive.close` waits for the clients to take what is queued for them
 DRAIN_S = 30.0
+#: a client that takes nothing for this long [s] while its queue is full is disconnected, with
+#: one line: a viewer that never read held ``play --foxglove`` (and every ROS subscriber of the
+#: played topics) without bound -- 162 018 messages took 378 s instead of 41
+SEND_DEADLINE_S = 5.0
+#: the most clients served at once; one more is answered 503 (500 silent clients cost the
+#: live twin 354 MB)
+MAX_CLIENTS = 16
 #: Message Data: opcode 1, subscription id (uint32), log time (uint64 ns), payload
 _DATA = struct.Struct('<BIQ')
 
@@ -101,10 +108,15 @@ class _Client:
         self.pushed = self.sent = self.dropped = 0
         self.open = True
         self.loop = loop
+        #: when the client last took a frame (or connected): its send deadline runs from here
+        self.progress = time.monotonic()
 
     def push(self, frame: bytes) -> None:
         """From the producer's thread (deque appends are atomic)."""
         self.pushed += 1
+        if not self.queue:
+            # it had taken everything: idle for want of data, not slow
+            self.progress = time.monotonic()
         self.queue.append(frame)
         if not self.wake_pending:
             self.wake_pending = True
@@ -120,13 +132,17 @@ class FoxgloveLive:
 
     def __init__(self, types: Mapping[str, str], port: int = 8765, host: str = '127.0.0.1', *,
                  block: bool = False, origins: Sequence[str] = (), token: str | None = None,
-                 backlog: int = BACKLOG):
+                 backlog: int = BACKLOG, send_deadline: float = SEND_DEADLINE_S,
+                 max_clients: int = MAX_CLIENTS):
         try:
             from websockets.asyncio.server import serve
         except ImportError:
             raise TwinError('the live view needs the websockets package: pip install '
                             'websockets') from None
         self.block, self.backlog = block, backlog
+        self.send_deadline, self.max_clients = send_deadline, max_clients
+        #: clients disconnected for taking nothing within the send deadline
+        self.slow_clients = 0
         more = [o.strip() for o in os.environ.get(ORIGINS_ENV, '').split(',') if o.strip()]
         self.origins = (None, *ORIGINS, *more, *origins)
         self.token = (os.environ.get(TOKEN_ENV) or None) if token is None else token
@@ -189,18 +205,25 @@ class FoxgloveLive:
 
     def _check(self, connection, request):
         """Refuse (403) a handshake from another host name, a foreign origin or without the
-        token; None lets it go on."""
-        host = request.headers.get('Host', '')
+        token, and (503) one past :data:`MAX_CLIENTS`; None lets it go on."""
         hosts = {f'{h}:{self.port}' for h in ('127.0.0.1', 'localhost', '[::1]', self.host)}
-        if host not in hosts:
-            why = f'Host {host!r} is not this server ({", ".join(sorted(hosts))})'
-        elif request.headers.get('Origin') not in self.origins:
-            why = (f'Origin {request.headers.get("Origin")!r} is not one of '
+        # every value: two Host or Origin headers made .get() raise (HTTP 500, not refused)
+        host_values = request.headers.get_all('Host')
+        origin_values = request.headers.get_all('Origin')
+        origin = origin_values[0] if len(origin_values) == 1 else None
+        if len(host_values) != 1 or host_values[0] not in hosts:
+            why = f'Host {host_values!r} is not this server ({", ".join(sorted(hosts))})'
+        elif len(origin_values) > 1 or origin not in self.origins:
+            why = (f'Origin {origin_values!r} is not one of '
                    f'{", ".join(o for o in self.origins if o)}')
         elif self.token is not None and not hmac.compare_digest(
                 (parse_qs(urlsplit(request.path).query).get('token') or [''])[0].encode(),
                 self.token.encode()):
             why = f'no valid token (the URL needs ?token= the value of {TOKEN_ENV})'
+        elif len(self._clients) >= self.max_clients:
+            self.refused(f'{len(self._clients)} clients connected already (at most '
+                         f'{self.max_clients})')
+            return connection.respond(503, 'Service Unavailable\n')
         else:
             return None
         self.refused(why)
@@ -274,6 +297,7 @@ class FoxgloveLive:
                     client.room.set()
                 await client.ws.send(frame)
                 client.sent += 1
+                client.progress = time.monotonic()
 
     # -- the producer's thread -----------------------------------------------------------------
 
@@ -285,7 +309,11 @@ class FoxgloveLive:
         if not targets:
             return
         for client, sid in targets:
+            if not client.open:
+                continue
             if len(client.queue) >= self.backlog:
+                if self._stalled(client):
+                    continue
                 if not self.block:
                     try:
                         client.queue.popleft()       # a live view shows the newest
@@ -295,10 +323,36 @@ class FoxgloveLive:
                         pass
                 else:
                     while client.open and len(client.queue) >= self.backlog:
+                        if self._stalled(client):
+                            break
                         client.room.clear()
                         if len(client.queue) >= self.backlog:
                             client.room.wait(0.1)
+                    if not client.open:
+                        continue
             client.push(_DATA.pack(1, sid, int(t_ns)) + bytes(data))
+
+    def _stalled(self, client: _Client) -> bool:
+        """Whether ``client`` has taken nothing within the send deadline; such a client is
+        disconnected, with one line, and nothing more is queued or waited for it."""
+        idle = time.monotonic() - client.progress
+        if idle <= self.send_deadline:
+            return False
+        client.open = False
+        client.room.set()
+        self.slow_clients += 1
+        print(f'foxglove: disconnected a client that took nothing for {idle:.1f} s (send '
+              f'deadline {self.send_deadline:g} s); the others go on', file=sys.stderr,
+              flush=True)
+
+        def abort():
+            self._clients.discard(client)
+            self._retarget()
+            transport = getattr(client.ws, 'transport', None)
+            if transport is not None:
+                transport.abort()            # its sends may wait on a full socket for ever
+        self.loop.call_soon_threadsafe(abort)
+        return True
 
     def close(self, drain_s: float = DRAIN_S) -> None:
         """Let the clients take what is queued for them (up to ``drain_s`` s), then close their
@@ -308,7 +362,7 @@ class FoxgloveLive:
         deadline = time.monotonic() + drain_s
         for client in list(self._clients):
             while (client.open and client.sent + client.dropped < client.pushed
-                   and time.monotonic() < deadline):
+                   and time.monotonic() < deadline and not self._stalled(client)):
                 time.sleep(0.01)
 
         async def stop():
