@@ -32,7 +32,7 @@ def test_run_bad_input_exit_2(tmp_path, capsys):
                              'paced by the clock owner'),
                             (['--namespace', 'left wing'], "namespace 'left wing'"),
                             (['--clock', 'follow', '--followers', '1'], 'only the clock owner'),
-                            (['--followers', '-2'], 'expected a count >= 0')):
+                            (['--followers', '-2'], 'expected a count in [0, 1000]')):
         assert main(['run', '--valve-model', 'C2', '--no-bag', *extra]) == 2
         err = capsys.readouterr().err
         assert fragment in err and len(err.strip().splitlines()) == 1, err
