@@ -81,11 +81,14 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     design = bag_params(run)
     if nominal:
         design = design.replace(**nominal)
+    design, stale = _calibrated_constants(design, nominal or {})
     period = control_period or run.control_period or 1e-3
     d = diagnose(run.signals, design, control_period=period, model=model, faults=faults,
                  window=window, free=free, bootstrap=bootstrap, pairs=pairs,
                  model_form=run.valve_model != model, onset=onset,
                  scenario=calibration_scenario(run.provenance))
+    if stale:
+        d.warnings.append(f'{bag}: {stale}')
     if run.provenance and run.provenance.scenario is not None:
         from ..prognostics.calibration import sensor_warnings
         d.warnings.extend(sensor_warnings(run.provenance.scenario_object().sensors, period))
@@ -100,6 +103,24 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
                               'which a bag without provenance does not state; give it with '
                               '--param NAME=VALUE (and --control-period)')
     return d
+
+
+def _calibrated_constants(design, given: Mapping[str, Any]):
+    """``design`` with XSS and GPQ from HD's calibration of its geometry and supply, unless
+    the user gave them; and a line when the bag recorded others (a bag of an older version,
+    or of a run given stale constants): the fitted model's gains must be those of the unit's
+    design, whatever the twin that recorded it was told."""
+    from ..physics.params import hd_constants
+    if 'XSS' in given or 'GPQ' in given:
+        return design, None
+    xss, gpq = hd_constants(design)
+    recorded = (design.xss, design.gpq)
+    if all(abs(a - b) <= 1e-9 * abs(b) for a, b in zip(recorded, (xss, gpq))):
+        return design, None
+    return design.replace(XSS=None, GPQ=None), (
+        f'the bag records XSS = {recorded[0]:.6g} m, GPQ = {recorded[1]:.6g} Pa*s/m^3, but '
+        f'HD\'s calibration of its design gives {xss:.6g}, {gpq:.6g}: the design\'s are used '
+        '(give --param XSS=... --param GPQ=... to impose others)')
 
 
 def plot_diagnosis(d: Diagnosis, path: str | Path) -> None:

@@ -95,8 +95,8 @@ class Calibrate(Command):
         units = dict(XSS='m', GPN='Pa/m', GQN='m^2/s', GPQ='Pa*s/m^3', k='-')
         for name, value in cal.items():
             print(f'{name:4s} = {value!r:24s} [{units[name]}]')
-        print('# config/eha.yaml holds XSS and GPQ; set them with --param XSS=... --param '
-              'GPQ=...')
+        print('# XSS and GPQ are derived from the design when not given; --param XSS=... --param '
+              'GPQ=... overrides them')
         return 0
 
 

@@ -4,12 +4,13 @@ Each field carries its unit, bounds and meaning in ``metadata``; the same schema
 loader (``config/eha.yaml``), the ``--param NAME=VALUE`` parser, the ROS parameter declarations
 and the docs' reference table. Names are the canonical names of doc/design/MODELS.md section 5.
 
-Derived parameters (``GM``, ``V0``, ``C4_alpha``) default to ``None`` and are computed from the
-others by :meth:`EhaParams.value`; giving a value overrides the derivation (a fault may scale
-``GM``, for instance). ``XSS`` and ``GPQ`` are *not* derived: they hold the HD calibration
-(:func:`servovalve_twin.physics.valves.calibration.calibrate`) and changing the HD geometry does
-not silently
-recalibrate them.
+Derived parameters (``GM``, ``V0``, ``C4_alpha``, ``XSS``, ``GPQ``) default to ``None`` and are
+computed from the others by :meth:`EhaParams.value`; giving a value overrides the derivation (a
+fault may scale ``GM``, for instance). ``XSS`` and ``GPQ``, the simplified models' gains, are
+the HD calibration of the design (:func:`servovalve_twin.physics.valves.calibration.calibrate`,
+15 ms, cached per HD geometry and supply: :data:`HD_INPUTS`): a design of another geometry or
+supply gets its own, never the default design's (kept constants of the default design made a
+healthy unit of a larger actuator read as a 0.147 gain loss).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, TwinError
 
 
 #: the actuator's subsystems that read parameters, as the ROS graph splits them: a node declares
@@ -99,10 +100,11 @@ class EhaParams:
     V0: float | None = _p(None, 'm^3', 0.0, 10.0, 'chamber volume at XJ = 0; derived '
                           'AJ*XJM + 2e-5', lo_open=True, group='hd')
     # simplified models (the HD calibration, see hd.calibrate)
-    XSS: float = _p(1.7394471845895356e-05, 'm', 0.0, 1.0e-2,
-                    'XS at which zero-flow P12 reaches PSR', lo_open=True, group='simplified')
-    GPQ: float = _p(1.0340455749992211e+12, 'Pa*s/m^3', 0.0, 1.0e16,
-                    'pressure-flow gain GP/GQ', lo_open=True, group='simplified')
+    XSS: float | None = _p(None, 'm', 0.0, 1.0e-2, 'XS at which zero-flow P12 reaches PSR; '
+                           "derived: HD's calibration of the design", lo_open=True,
+                           group='simplified')
+    GPQ: float | None = _p(None, 'Pa*s/m^3', 0.0, 1.0e16, 'pressure-flow gain GP/GQ; derived: '
+                           "HD's calibration of the design", lo_open=True, group='simplified')
     C4_alpha: float | None = _p(None, '-', 0.0, 2.0, 'C4 relaxation factor; derived 1/(1+k)',
                                 lo_open=True, group='simplified')
     C4_tol: float = _p(1.0e-3, 'Pa', 0.0, 1.0e6, 'C4 convergence tolerance on |dP12|',
@@ -130,14 +132,24 @@ class EhaParams:
         return self.V0 if self.V0 is not None else self.AJ * self.XJM + 2.0e-5
 
     @property
+    def xss(self) -> float:
+        """XSS [m]: the given one, else HD's calibration of this design."""
+        return self.XSS if self.XSS is not None else hd_constants(self)[0]
+
+    @property
+    def gpq(self) -> float:
+        """GPQ [Pa*s/m^3]: the given one, else HD's calibration of this design."""
+        return self.GPQ if self.GPQ is not None else hd_constants(self)[1]
+
+    @property
     def gpn(self) -> float:
         """Nominal pressure gain GPN = PSRN/XSS [Pa/m]."""
-        return self.PSRN / self.XSS
+        return self.PSRN / self.xss
 
     @property
     def k(self) -> float:
         """Leakage-loop gain k = CLk*GPQ [-]."""
-        return self.CLk * self.GPQ
+        return self.CLk * self.gpq
 
     @property
     def c4_alpha(self) -> float:
@@ -154,7 +166,7 @@ class EhaParams:
         if name not in PARAM_NAMES:
             raise ParameterError(f'unknown parameter {name!r}; expected one of '
                                  f'{sorted(PARAM_NAMES, key=str.lower)}')
-        derived = {'GM': 'gm', 'V0': 'v0', 'C4_alpha': 'c4_alpha'}
+        derived = {'GM': 'gm', 'V0': 'v0', 'C4_alpha': 'c4_alpha', 'XSS': 'xss', 'GPQ': 'gpq'}
         return getattr(self, derived.get(name, name))
 
     def resolved(self) -> dict[str, Any]:
@@ -229,6 +241,43 @@ class EhaParams:
 
 PARAM_FIELDS = {f.name: f for f in dataclasses.fields(EhaParams)}
 PARAM_NAMES = tuple(PARAM_FIELDS)
+
+#: what HD's calibration of XSS and GPQ depends on: the valve's geometry and fluid (the 'hd'
+#: group but for the compressible option and its bulk modulus and volume, which a static
+#: curve does not see), the spool's travel and the supply
+HD_INPUTS = tuple(n for n, f in PARAM_FIELDS.items()
+                  if f.metadata['group'] == 'hd' and n not in ('compressible', 'beta', 'V0')
+                  ) + ('XSM', 'PSRN', 'PR', 'Pcav')
+#: HD's calibration per design (the values of HD_INPUTS) -> (XSS, GPQ). The default design's
+#: is the one calibrate() gave once, kept to its last bit so that every default run stays the
+#: run it was (calibrate() today gives the same to 1 ulp; test_hd holds them to 1e-9)
+_HD_CONSTANTS: dict[tuple, tuple[float, float]] = {}
+_DEFAULT_HD_CONSTANTS = (1.7394471845895356e-05, 1.0340455749992211e+12)
+
+
+def _hd_key(p: 'EhaParams') -> tuple:
+    return tuple(float(p.value(n)) if n != 'Pcav' else float(p.Pcav) for n in HD_INPUTS)
+
+
+def hd_constants(p: 'EhaParams') -> tuple[float, float]:
+    """(XSS, GPQ) of ``p``'s design: HD's calibration, computed once per design."""
+    key = _hd_key(p)
+    got = _HD_CONSTANTS.get(key)
+    if got is None:
+        # imported here: the calibration solves HD, which reads these parameters
+        from .valves.calibration import calibrate
+        # (given values, any: the calibration's inputs do not include them)
+        try:
+            cal = calibrate(p.replace(XSS=_DEFAULT_HD_CONSTANTS[0],
+                                      GPQ=_DEFAULT_HD_CONSTANTS[1]))
+        except TwinError as exc:
+            raise ParameterError(f'XSS and GPQ cannot be derived for this design ({exc}); give '
+                                 'them: --param XSS=... --param GPQ=...') from None
+        got = (cal['XSS'], cal['GPQ'])
+        if len(_HD_CONSTANTS) > 256:
+            _HD_CONSTANTS.clear()
+        _HD_CONSTANTS[key] = got
+    return got
 
 # derived constants the compiled models read: the paper's GPN = PSRN/XSS and k = CLk*GPQ, and
 # N_VALVE_CONSTANTS slots VC0.. that a valve model fills with its own (its registry entry's
@@ -347,4 +396,6 @@ def names_read_by(subsystem: str) -> tuple[str, ...]:
     return tuple(n for n, f in PARAM_FIELDS.items() if subsystem in f.metadata['readers'])
 
 
+_HD_CONSTANTS[_hd_key(EhaParams(XSS=_DEFAULT_HD_CONSTANTS[0], GPQ=_DEFAULT_HD_CONSTANTS[1]))
+              ] = _DEFAULT_HD_CONSTANTS
 DEFAULTS = EhaParams()

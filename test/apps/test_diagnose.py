@@ -74,3 +74,22 @@ def test_a_fit_ending_past_the_limit_is_refused_before_anything_is_read(tmp_path
     assert main(['diagnose', str(bag), '--json', str(out), '--window', '0.2:0.8',
                  '--faults', 'leakage_growth']) == 0
     assert json.loads(out.read_text())['window'] == [0.2, 0.8]
+
+
+def test_a_bags_stale_gains_give_way_to_its_designs_calibration():
+    """A bag of another design (more clearance) that recorded the default design's XSS and
+    GPQ: the design's own calibration is used and one line says so; constants the user gives
+    are kept; constants that agree say nothing."""
+    from servovalve_twin.apps.diagnose import _calibrated_constants
+    from servovalve_twin.physics.params import DEFAULTS
+    from servovalve_twin.physics.valves.calibration import calibrate
+    other = DEFAULTS.replace(c=1.0e-5)
+    cal = calibrate(other)
+    recorded = other.replace(XSS=DEFAULTS.xss, GPQ=DEFAULTS.gpq)
+    design, line = _calibrated_constants(recorded, {})
+    assert (design.xss, design.gpq) == (cal['XSS'], cal['GPQ'])
+    assert line.startswith('the bag records XSS = 1.73945e-05 m') and '2.5927' in line
+    design, line = _calibrated_constants(recorded, {'XSS': DEFAULTS.xss})
+    assert design is recorded and line is None
+    design, line = _calibrated_constants(other.replace(XSS=cal['XSS'], GPQ=cal['GPQ']), {})
+    assert line is None and design.xss == cal['XSS']

@@ -150,7 +150,7 @@ def test_9_saturated_b_linear_models():
     hd = cached_run('HD')
     w = hd.window(0.0, 0.2)
     v_hd = hd['dxj'][w].max()
-    gq_xss = DEFAULTS.gpn / DEFAULTS.GPQ * DEFAULTS.XSS / DEFAULTS.AJ    # GQ*XSS/AJ [m/s]
+    gq_xss = DEFAULTS.gpn / DEFAULTS.gpq * DEFAULTS.xss / DEFAULTS.AJ    # GQ*XSS/AJ [m/s]
     for m in ('saturated', 'B'):
         v = cached_run(m)['dxj'][w].max()
         print(f'{m}: no-load peak speed {v * 1e3:.1f} mm/s <= GQ*XSS/AJ = {gq_xss * 1e3:.1f} mm/s'

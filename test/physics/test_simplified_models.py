@@ -16,7 +16,7 @@ def sat(u, lim):
 
 def closed_forms(p):
     """MODELS.md section 2, written independently of the implementation."""
-    gpn, gpq, k, xss = p.PSRN / p.XSS, p.GPQ, p.CLk * p.GPQ, p.XSS
+    gpn, gpq, k, xss = p.PSRN / p.xss, p.gpq, p.CLk * p.gpq, p.xss
 
     def u(xs, qj, psr):
         return psr * xs / xss - gpq * qj
@@ -60,7 +60,7 @@ def test_bounds(clk):
         c4 = abs(VALVE_MODELS['C4'](xs, qj, psr, p)[0])
         assert c2 <= psr and c4 <= psr + 2 * p.C4_tol * (1 + k)
         assert c1 <= psr / (1 + k) * (1 + 1e-12)
-        c3_cap = psr / (1 + k * p.XSS / max(abs(xs), p.XSS))
+        c3_cap = psr / (1 + k * p.xss / max(abs(xs), p.xss))
         assert c3 <= c3_cap * (1 + 1e-12)
         assert psr / (1 + k) <= c3_cap * (1 + 1e-12) and c3_cap <= psr
 
@@ -96,7 +96,7 @@ def test_c4_equals_c2_over_the_paper_scenario():
 
 
 def test_naive_leakage_loop_diverges_for_k_above_1_solved_form_does_not():
-    p = DEFAULTS.replace(CLk=1.5 / DEFAULTS.GPQ)             # k = 1.5
+    p = DEFAULTS.replace(CLk=1.5 / DEFAULTS.gpq)             # k = 1.5
     xs, qj = 5e-6, 0.0
     naive = naive_leakage_loop(xs, qj, p.kernel(), 40)
     solved = VALVE_MODELS['linear_leakage'](xs, qj, 20e6, p)[0]
@@ -104,6 +104,6 @@ def test_naive_leakage_loop_diverges_for_k_above_1_solved_form_does_not():
     assert abs(naive[-1]) > 1e6 * abs(solved)
     assert np.all(np.sign(naive[1:]) != np.sign(naive[:-1]))    # it oscillates
     # for k < 1 the same loop converges to the solved form
-    p = DEFAULTS.replace(CLk=0.5 / DEFAULTS.GPQ)
+    p = DEFAULTS.replace(CLk=0.5 / DEFAULTS.gpq)
     naive = naive_leakage_loop(xs, qj, p.kernel(), 200)
     assert naive[-1] == pytest.approx(VALVE_MODELS['linear_leakage'](xs, qj, 20e6, p)[0])

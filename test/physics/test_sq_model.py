@@ -14,8 +14,8 @@ from servovalve_twin.apps.compare import error_metrics
 
 SQ = VALVE_MODELS['SQ']
 P0 = DEFAULTS.replace(CLk=0.0)
-X0 = 2 * DEFAULTS.XSS
-K = DEFAULTS.gpn / DEFAULTS.GPQ / math.sqrt(DEFAULTS.PSRN)
+X0 = 2 * DEFAULTS.xss
+K = DEFAULTS.gpn / DEFAULTS.gpq / math.sqrt(DEFAULTS.PSRN)
 
 
 def edges(xs):
@@ -54,7 +54,7 @@ def test_closed_form_solves_the_edge_equations(xs, frac):
 
 def test_no_load_full_stroke_flow_is_the_calibrated_gain():
     # P12 = 0 at QJ = GQN*XS for any opening: the orifice law keeps the C-models' flow gain
-    gqn = DEFAULTS.gpn / DEFAULTS.GPQ
+    gqn = DEFAULTS.gpn / DEFAULTS.gpq
     for xs in (2e-5, 8e-5, 1.5e-4):
         assert SQ(xs, gqn * xs, DEFAULTS.PSRN, P0)[0] == pytest.approx(0.0, abs=1.0)
 
@@ -76,7 +76,7 @@ def test_stall_and_null():
     ps = 20e6
     assert SQ(0.0, 0.0, ps, P0)[0] == 0.0
     gp = (SQ(1e-9, 0.0, ps, P0)[0] - SQ(-1e-9, 0.0, ps, P0)[0]) / 2e-9
-    assert gp == pytest.approx(ps / DEFAULTS.XSS, rel=1e-4)    # the paper's PSR/XSS
+    assert gp == pytest.approx(ps / DEFAULTS.xss, rel=1e-4)    # the paper's PSR/XSS
     stall = [SQ(x, 0.0, ps, P0)[0] for x in np.linspace(0, 1.5e-4, 50)]
     assert np.all(np.diff(stall) > 0) and stall[-1] < ps and stall[-1] > 0.97 * ps
 

@@ -27,7 +27,7 @@ class LeakDetector(Algorithm):
         p = self.params
         holding = abs(u['dxj']) < p['max_speed'] and abs(u['p12']) > p['min_p12']
         if holding:
-            ratio = abs(u['xs']) * u['psr'] / (abs(u['p12']) * self.nominal.XSS)
+            ratio = abs(u['xs']) * u['psr'] / (abs(u['p12']) * self.nominal.xss)
             gain = self.period / p['tau']
             self.index = ratio if self.held == 0 else self.index + gain * (ratio - self.index)
             self.held += 1

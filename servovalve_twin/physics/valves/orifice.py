@@ -63,7 +63,7 @@ from ...jitcache import jit
 def sq_constants(params) -> tuple[float]:
     """SQ's kernel constant ``VC0``: the orifice coefficient ``K = GQN/sqrt(PSRN)`` with
     ``GQN = GPN/GPQ`` (named K, not k: the paper's k is the leakage gain CLk*GPQ)."""
-    return (params.gpn / (params.GPQ * math.sqrt(params.PSRN)),)
+    return (params.gpn / (params.gpq * math.sqrt(params.PSRN)),)
 
 
 @jit(inline='always')
