@@ -110,7 +110,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
              bootstrap: int = 0, seed: int = 0, pairs: bool = False,
              start: float | None = None, model_form: bool = True,
              onset: bool = False, scenario: str | None = None,
-             from_rest: bool = True) -> Diagnosis:
+             from_rest: bool = True, calibration: Mapping[str, Any] | None = None
+             ) -> Diagnosis:
     """Fit every hypothesis and rank them (see the module docstring).
 
     :param signals: the run's 1 ms rows (``read_bag(...).signals``, ``simulate(...).signals``)
@@ -132,6 +133,9 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     :param scenario: the calibration scenario the run flew (``'bit'``, ``'paper'``), whose own
         model-form calibration then applies (:func:`.calibration.fault_calibration`); a bag's
         is found by :func:`..apps.diagnose.calibration_scenario`
+    :param calibration: the model-form calibration to apply instead of the packaged one: the
+        flight's own (:mod:`.flight_calibration`, with ``scenario`` its ``'own'`` entry), whose
+        healthy units also set the verdict floor
     """
     faults = _hypotheses(faults, free, pairs)
     free = list(free)
@@ -141,19 +145,22 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     n_eff = effective_n(results[0][2], len(SIGNALS))
     candidates = [_candidate(problem, *r, free, n, n_eff) for r in results]
     candidates.sort(key=lambda c: c.score)
-    # the verdict: the best-scoring hypothesis that is healthy or of faults of a size worth
-    # reporting; a fault fitted below DETECTABLE of its alarm severity is the model's own
-    # mismatch (a healthy HD unit fits a 2 % null bias under SQ), so it yields. The size is
+    # the verdict: the best-scoring hypothesis, healthy where that is a fault below a size
+    # worth reporting (DETECTABLE of its alarm severity: the model's own mismatch -- a healthy
+    # HD unit fits a 2 % null bias under SQ -- or a fault below what the flight can show).
+    # It never hands the run to the next hypothesis: on a flight where SQ's mismatch looked
+    # like a small gain loss (0.053, below its floor), the walk down the ranking named the
+    # next fault above its own floor (a supply loss of 0.073) in every healthy unit. The size is
     # the model-form-corrected one, the severity the answer would state and the detection
     # limits are in: SQ reads a leak on the paper flight ~10 % low, and a 1.7 x leak (limit
     # 1.585 x), fitted at 1.45-1.54, was called healthy (measured)
     from .calibration import calibration_for, onset_widen
-    cal = calibration_for(model, free) if model_form else None
+    if calibration is not None:
+        cal = calibration if model_form else None
+    else:
+        cal = calibration_for(model, free) if model_form else None
     by_name = {c.fault: c for c in candidates}
-    best = next(c for c in candidates if c.fault == HEALTHY or (
-        _detectable(c, cal=cal, scenario=scenario)
-        and all(by_name[f].score - c.score >= PAIR_EVIDENCE
-                for f in c.faults if len(c.faults) == 2)))
+    best = _verdict_candidate(candidates, by_name, cal, scenario)
     candidates.remove(best)
     candidates.insert(0, best)
     second = None
@@ -522,12 +529,36 @@ def _unbiased(cal: Mapping[str, Any] | None, fault: str, severity: float,
     return from_g(fault, g - bias_at(c, g))
 
 
+def _verdict_candidate(candidates: list[Candidate], by_name: Mapping[str, Candidate],
+                       cal: Mapping[str, Any] | None, scenario: str | None) -> Candidate:
+    """The verdict among ``candidates`` (best score first): a pair only with both faults
+    worth reporting and PAIR_EVIDENCE better than each of its singles (else the ranking goes
+    on to them); the first single fault if it is worth reporting, else healthy."""
+    for c in candidates:
+        if c.fault == HEALTHY:
+            return c
+        if len(c.faults) == 2:
+            if _detectable(c, cal=cal, scenario=scenario) and all(
+                    by_name[f].score - c.score >= PAIR_EVIDENCE for f in c.faults):
+                return c
+            continue
+        return c if _detectable(c, cal=cal, scenario=scenario) else by_name[HEALTHY]
+    return by_name[HEALTHY]
+
+
 def _detectable(c: Candidate, fraction: float = DETECTABLE,
                 cal: Mapping[str, Any] | None = None, scenario: str | None = None) -> bool:
-    """Every fault of ``c`` of a size worth reporting (:func:`sized`), after the model-form
-    correction of ``cal`` where one is given."""
-    return all(sized(f, _unbiased(cal, f, s, scenario), fraction)
-               for f, s in zip(c.faults, c.severities))
+    """Every fault of ``c`` of a size worth reporting: beyond the verdict floor of the flight's
+    own calibration where ``cal`` is one (:mod:`.flight_calibration`: what no healthy unit of
+    this flight and design fitted), else :func:`sized`, after the model-form correction of
+    ``cal`` where one is given."""
+    from .flight_calibration import above_floor
+    out = True
+    for f, s in zip(c.faults, c.severities):
+        beyond = above_floor(cal, f, s) if fraction == DETECTABLE else None
+        out = out and (beyond if beyond is not None else
+                       sized(f, _unbiased(cal, f, s, scenario), fraction))
+    return out
 
 
 __all__ = ['diagnose', 'Diagnosis', 'Candidate', 'DIAGNOSABLE', 'HEALTHY', 'UNEXPLAINED',

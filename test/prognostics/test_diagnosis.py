@@ -349,8 +349,9 @@ def test_diagnose_cli_writes_the_schema(flights, tmp_path, capsys):
     j = json.loads(out.read_text())
     assert set(j) == {'fault', 'severity', 'interval', 'confidence', 'interval_counts',
                       'fit', 'identifiable', 'bounds', 'also_consistent_with', 'onset',
-                      'candidates', 'model', 'window', 'warnings'}
+                      'candidates', 'model', 'window', 'calibration', 'warnings'}
     assert j['warnings'] == []              # the twin's bag: its provenance says it all
+    assert j['calibration'] is None         # SQ's own bag: the model is exact
     # an SQ twin's bag diagnosed with SQ: the model is exact, no model-form term
     assert j['confidence'] == 0.95 and j['interval_counts'] == 'measurement noise'
     assert j['identifiable'] is True and j['bounds'] == []
@@ -818,3 +819,35 @@ def test_a_fleet_fit_is_the_fit_run_by_run(monkeypatch):
     monkeypatch.setitem(valves.VALVE_MODELS, 'SQ',
                         dataclasses.replace(valves.VALVE_MODELS['SQ'], fleet_pays=False))
     assert answer() == fleet
+
+
+def _cand(fault, severities, score):
+    from types import SimpleNamespace
+    faults = tuple(fault.split('+')) if fault != 'healthy' else ()
+    return SimpleNamespace(fault=fault, faults=faults, severities=tuple(severities),
+                           score=score)
+
+
+def test_a_best_fit_below_the_floor_is_healthy_not_the_next_fault():
+    """The best-scoring hypothesis a gain loss of 0.053 (below 20 % of its alarm 0.7 =
+    0.14): healthy, although a supply loss of 0.073 (above its floor 0.06) scores better than
+    healthy -- the walk down the ranking named it in every healthy unit of a trapezoid
+    flight. A detectable best is the verdict; a pair needs both faults detectable and
+    PAIR_EVIDENCE (10) over each single, else the ranking goes on to the singles."""
+    from servovalve_twin.prognostics.diagnosis import PAIR_EVIDENCE, _verdict_candidate
+    healthy = _cand('healthy', (), 0.0)
+    gain = _cand('torque_motor_gain_loss', (0.053,), -30.0)
+    supply = _cand('supply_loss', (0.073,), -20.0)
+    ranked = [gain, supply, healthy]
+    by_name = {c.fault: c for c in ranked}
+    assert _verdict_candidate(ranked, by_name, None, None) is healthy
+    gain.severities = (0.15,)
+    assert _verdict_candidate(ranked, by_name, None, None) is gain
+    pair = _cand('supply_loss+torque_motor_gain_loss', (0.073, 0.15), -30.0 - PAIR_EVIDENCE)
+    ranked = [pair, gain, supply, healthy]
+    by_name = {c.fault: c for c in ranked}
+    assert _verdict_candidate(ranked, by_name, None, None) is pair
+    pair.score = -30.0 - 0.99 * PAIR_EVIDENCE
+    assert _verdict_candidate(ranked, by_name, None, None) is gain
+    pair.score, pair.severities = -30.0 - PAIR_EVIDENCE, (0.05, 0.15)   # supply below floor
+    assert _verdict_candidate(ranked, by_name, None, None) is gain
