@@ -14,6 +14,7 @@ from ..errors import TwinError
 from ..outputs import output_path
 from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
                                      diagnose, model_form_estimate)
+from ..prognostics.flight_calibration import OWN, cached, flight_key
 from ..prognostics.prognosis import MIN_CYCLES, Prognosis, prognose
 from .plots import plot_overlay
 from .replay import bag_params
@@ -83,10 +84,18 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
         design = design.replace(**nominal)
     design, stale = _calibrated_constants(design, nominal or {})
     period = control_period or run.control_period or 1e-3
+    scenario = calibration_scenario(run.provenance)
+    own = flight_calibration_of(run, design, model, free, period)
     d = diagnose(run.signals, design, control_period=period, model=model, faults=faults,
                  window=window, free=free, bootstrap=bootstrap, pairs=pairs,
                  model_form=run.valve_model != model, onset=onset,
-                 scenario=calibration_scenario(run.provenance))
+                 scenario=OWN if own is not None else scenario, calibration=own)
+    if own is None and scenario is None and run.valve_model != model and run.provenance:
+        d.warnings.append(
+            f'{bag}: no calibration of this flight and design: the packaged one (other '
+            'flights, the default design) is applied, and its intervals and verdict floor may '
+            f'not hold here; calibrate it (minutes): servovalve-twin calibrate-diagnosis {bag}'
+            + (f' --free {",".join(free)}' if free else ''))
     if stale:
         d.warnings.append(f'{bag}: {stale}')
     if run.provenance and run.provenance.scenario is not None:
@@ -103,6 +112,15 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
                               'which a bag without provenance does not state; give it with '
                               '--param NAME=VALUE (and --control-period)')
     return d
+
+
+def flight_calibration_of(run, design, model: str, free: Sequence[str], period: float):
+    """The cached calibration of the flight a bag recorded (its provenance scenario) for this
+    design, model and free nuisance (:mod:`..prognostics.flight_calibration`), or None."""
+    if not run.provenance or run.provenance.scenario is None:
+        return None
+    return cached(flight_key(run.provenance.scenario_object().to_dict(), design, model, free,
+                             period))
 
 
 def _calibrated_constants(design, given: Mapping[str, Any]):

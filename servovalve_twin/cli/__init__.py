@@ -21,7 +21,8 @@ from .common import Command, Parser
 COMMANDS: list[Command] = [
     physics.Simulate(), physics.Characteristic(), physics.Calibrate(), physics.Params(),
     physics.Report(), ros.Run(), bags.Compare(), ros.Replay(), sweep.Sweep(), ros.Play(),
-    phm.Evaluate(), phm.Diagnose(), phm.MonitorThresholds(), phm.Bit(), phm.Prognose(),
+    phm.Evaluate(), phm.Diagnose(), phm.CalibrateDiagnosis(), phm.MonitorThresholds(),
+    phm.Bit(), phm.Prognose(),
     physics.Fmu(), physics.Faults(), bags.Reindex(),
 ]
 

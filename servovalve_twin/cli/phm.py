@@ -170,6 +170,96 @@ def _print_limits(args: argparse.Namespace, free: tuple[str, ...],
     return 0
 
 
+class CalibrateDiagnosis(Command):
+    name = 'calibrate-diagnosis'
+    help = ('calibrate diagnose on a flight and design of your own: fly seeded HD units on it, '
+            'diagnose them, fit the intervals and the verdict floor (cached; diagnose uses it)')
+
+    def add_arguments(self, p):
+        p.add_argument('flight', metavar='SCENARIO|BAG',
+                       help='a built-in scenario, a scenario YAML file, or a bag whose flight '
+                            '(and design) its provenance records')
+        p.add_argument('--model', default='SQ', metavar='SQ|C2|...',
+                       help='the simplified model diagnose fits (default SQ)')
+        p.add_argument('--free', metavar='M,CJ,...', help='the nuisance diagnose will free '
+                       '(as you will give it to diagnose)')
+        p.add_argument('--units', type=int, default=None, metavar='N',
+                       help='HD units per fault and level (default 3; twice as many healthy '
+                            'per level)')
+        p.add_argument('--seed', type=int, default=0, help="the units' seed (default 0)")
+        p.add_argument('--workers', type=int, default=None, metavar='N',
+                       help='processes (default: one per core)')
+        p.add_argument('--control-period', type=positive_float, metavar='S',
+                       help="the ECU's period (default: the bag's, else 1 ms)")
+        add_param_options(p)
+
+    def main(self, args):
+        from ..prognostics.flight_calibration import DEFAULT_UNITS, calibrate_flight, jobs
+        from ..prognostics.diagnosis import DIAGNOSABLE
+        scenario, design, period = _flight_and_design(args)
+        free = tuple(n.strip() for n in (args.free or '').split(',') if n.strip())
+        units = DEFAULT_UNITS if args.units is None else args.units
+        if args.workers is not None and args.workers < 1:
+            raise TwinError(f'--workers must be >= 1, got {args.workers}')
+        if not 0 <= args.seed < 2 ** 63:
+            raise TwinError(f'--seed must be an integer in [0, 2**63 - 1], got {args.seed}')
+        n = len(jobs(DIAGNOSABLE, max(units, 1), args.seed))
+        print(f'calibrating diagnose on {args.flight}: {n} HD units (model {args.model}, '
+              f'free {",".join(free) or "none"}); a rerun resumes', file=sys.stderr)
+        try:
+            cal, path = calibrate_flight(scenario, design, model=args.model, free=free,
+                                         control_period=period, units=units, seed=args.seed,
+                                         workers=args.workers)
+        except KeyboardInterrupt:
+            print('servovalve-twin calibrate-diagnosis: interrupted; the finished units are '
+                  'kept: run the same command again to resume', file=sys.stderr)
+            return 130
+        print(_calibration_summary(cal))
+        print(f'-> {path}')
+        return 0
+
+
+def _flight_and_design(args):
+    """(scenario dict, design, control period) of ``args.flight`` and ``--param``."""
+    from ..config import load_scenario
+    from ..physics.simulate import effective_params
+    flight = Path(args.flight)
+    if flight.is_dir() or flight.suffix in ('.mcap', '.db3'):
+        from ..apps.replay import bag_params
+        from ..bag.anybag import open_any_bag
+        bag = open_any_bag(flight)
+        prov = bag.provenance
+        if not prov or prov.scenario is None:
+            raise TwinError(f'{args.flight}: the bag records no flight (no provenance): give '
+                            'the scenario it flew instead')
+        design = bag_params(bag)
+        if args.param:
+            design = design.replace(**overrides(args))
+        return (prov.scenario_object().to_dict(), design,
+                args.control_period or prov.control_period or 1e-3)
+    scn = load_scenario(args.flight)
+    return scn.to_dict(), effective_params(scn, overrides(args)), args.control_period or 1e-3
+
+
+def _calibration_summary(cal) -> str:
+    """Per fault: the verdict floor (as a severity) and the model-form spread and bias."""
+    from ..physics.faults import FAULTS
+    from ..prognostics.calibration import from_g
+    lines = [f'{"fault":24s} {"verdict floor":>14s} {"spread (g)":>11s} {"bias (g)":>9s}  '
+             'named units']
+    for f, floor in cal['healthy_floor'].items():
+        c = cal['faults'].get(f)
+        spec = FAULTS[f]
+        sev = from_g(f, floor if spec.demo >= spec.healthy else -floor)
+        lines.append(f'{f:24s} {sev:>9.4g} {spec.unit.split()[0]:>4s} '
+                     + (f'{c["sigma"]:>11.3g} {c["bias"]:>9.3g}  {c["units"]}' if c else
+                        f'{"-":>11s} {"-":>9s}  too few named'))
+    lines.append(f'(verdict floor {cal["verdict_fraction"]:.3f} of the way to each alarm value, '
+                 f'from {cal["healthy_units"]} healthy units: a healthy unit of this flight is '
+                 f'named a fault with probability at most 1/{cal["healthy_units"] + 1})')
+    return '\n'.join(lines)
+
+
 class MonitorThresholds(Command):
     name = 'monitor-thresholds'
     help = "the monitor's thresholds for a stated false-alarm rate, from healthy HD units on " \

@@ -274,7 +274,7 @@ def iter_results(cases: Sequence[Case], *, workers: int | None = None,
     rest = cases[1:]
     ctx = multiprocessing.get_context('fork') if 'fork' in \
         multiprocessing.get_all_start_methods() else None
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=worker_init)
     try:
         yield from progress(_as_finished(pool, rest, traces, 4 * workers),
                             total=len(cases), initial=1, desc='sweep', unit='run')
@@ -310,7 +310,7 @@ def restore_signals(old: Mapping) -> None:
         signal.signal(sig, handler)
 
 
-def _worker_init() -> None:
+def worker_init() -> None:
     """A pool worker: Ctrl-C is the parent's to decide (it stops the runs not started and
     waits for these); SIGTERM and SIGHUP end it; and it ends with its parent (Linux's
     parent-death signal), so that a parent killed outright (SIGKILL) leaves no worker."""

@@ -138,7 +138,22 @@ class Diagnosis:
                     also_consistent_with=self.also_consistent_with,
                     onset=None if unexplained else self.onset,
                     candidates=[c.to_json() for c in self.candidates], model=self.model,
-                    window=list(self.window), warnings=list(self.warnings))
+                    window=list(self.window), calibration=self._calibration_json(),
+                    warnings=list(self.warnings))
+
+    def _calibration_json(self) -> dict[str, Any] | None:
+        """Which model-form calibration was applied: the flight's own (its cache key, the
+        verdict floor and the healthy units it stands on) or the packaged one (and which of
+        its flights' entries); None: none (noise-only intervals)."""
+        cal = self.calibration
+        if cal is None:
+            return None
+        if 'verdict_fraction' in cal:
+            about = cal.get('about', {})
+            return dict(source='flight', key=about.get('key'), units=about.get('units'),
+                        healthy_units=cal.get('healthy_units'),
+                        verdict_fraction=cal['verdict_fraction'])
+        return dict(source='packaged', flight=self.calibration_scenario)
 
 
 __all__ = ['Candidate', 'Diagnosis', 'HEALTHY', 'UNEXPLAINED', 'CONFUSABLE']

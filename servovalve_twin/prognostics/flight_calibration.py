@@ -1,0 +1,268 @@
+"""Diagnosis calibrated on the flight and the design at hand, on demand.
+
+Why. A conformal interval (and a false-alarm rate) is valid for units exchangeable with the
+calibration units. The packaged calibration flew units of the default design on four flights;
+on a flight or an actuator of a user's own, SQ's model-form error is another, and the trust did
+not transfer (every healthy unit of a trapezoid flight was named a supply loss; a larger
+actuator's healthy unit a gain loss). The way to make a unit exchangeable with the calibration
+units is to fly the calibration units on that very flight and design: this module does, and
+caches the result under a key of everything it depends on.
+
+What is flown (:func:`jobs`): seeded HD units of the design, nuisance M, CJ, FDJ within 1.5 x
+the documented spread and sensor noise 0.5-2 x the documented level (as the packaged
+calibration's, :func:`.calibration.unit_signals`): ``units`` per catalog fault a simplified
+model can see and per level (0.3, 0.6, 1 of the way to its alarm value), and ``2 * units *
+len(LEVELS)`` healthy ones. Each unit's seed comes from (seed, fault, level, replicate) alone,
+so that adding a fault or units adds those units only.
+
+What is fitted (:func:`fit`), from their diagnoses with the model and free nuisance asked for:
+
+- the model-form bias and spread per fault at the split-conformal rank, by the packaged
+  calibration's method (:func:`.calibration.fit_calibration`), as the flight's own entry
+  (``own``);
+- the verdict floor (``verdict_fraction``): the largest size -- as a fraction of the way to its
+  alarm value in its coordinate ``g`` -- of the fault any healthy unit of this flight would
+  have been named with: the best-scoring hypothesis where that is a fault scoring better than
+  healthy (0 where healthy scores best). ``diagnose`` names a run's best-scoring fault only
+  beyond it (and says healthy otherwise: healthy, or below what this flight can show); by
+  exchangeability a healthy unit of this flight and design is named a fault with probability
+  at most ``1/(n + 1)`` (n healthy units) -- a test with a stated false-alarm rate, in place of
+  a fixed fraction of the way to the alarm value. Per fault, that fraction of the way is the
+  flight's verdict floor (``healthy_floor``, in ``g``): what the flight can reveal.
+
+:func:`calibrate_flight` runs the units in a process pool (progress on a terminal), appends
+each finished unit to a ``.partial.jsonl`` beside the cache entry (Ctrl-C keeps them; a rerun
+resumes), and writes the entry atomically. ``diagnose`` finds it by the same key
+(:func:`cached`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+from ..errors import TwinError
+from ..outputs import output_file
+from ..physics.faults import FAULTS
+from ..physics.params import EhaParams
+from .calibration import LEVELS, fit_calibration, to_g, unit_signals
+
+#: the method's version: a cache entry of another is not read (its key differs)
+VERSION = 1
+#: the units per fault and level (the healthy ones: twice as many per level)
+DEFAULT_UNITS = 3
+#: the nuisance spread of the units, as a multiple of the documented one
+SPREAD = 1.5
+#: the calibration entry name of a flight's own units
+OWN = 'own'
+#: where the cache lives: this variable, else $XDG_CACHE_HOME/servovalve_twin, else
+#: ~/.cache/servovalve_twin
+CACHE_ENV = 'SERVOVALVE_TWIN_CACHE'
+
+
+def cache_dir() -> Path:
+    base = os.environ.get(CACHE_ENV)
+    if not base:
+        xdg = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'),
+                                                               '.cache')
+        base = os.path.join(xdg, 'servovalve_twin')
+    return Path(base) / 'diagnosis'
+
+
+def _inputs(scenario: Mapping[str, Any]) -> dict[str, Any]:
+    """What of a scenario the units fly: its duration and inputs (a name or windows do not
+    change the flight)."""
+    return {k: scenario.get(k) for k in ('duration', 'com', 'fr', 'psr')}
+
+
+def flight_key(scenario: Mapping[str, Any], design: EhaParams, model: str,
+               free: Sequence[str], control_period: float) -> str:
+    """The cache key: a digest of the flight's inputs, the design (every parameter, derived
+    ones resolved), the fitted model, the free nuisance, the control period and
+    :data:`VERSION` -- what a diagnosis of a run can know of it; the units and seed it was
+    computed with are in its ``about``."""
+    payload = json.dumps(dict(version=VERSION, inputs=_inputs(scenario),
+                              design=design.resolved(), model=model, free=sorted(free),
+                              control_period=float(control_period)),
+                         sort_keys=True, default=float)
+    return hashlib.sha256(payload.encode()).hexdigest()[:24]
+
+
+def unit_seed(seed: int, fault: str | None, level: float, replicate: int) -> int:
+    """A unit's seed from what it is alone (adding a fault re-seeds no other unit)."""
+    text = f'{seed}/{fault or "healthy"}/{level:.6g}/{replicate}'
+    return int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], 'little') >> 1
+
+
+def jobs(faults: Sequence[str], units: int, seed: int) -> list[tuple]:
+    """(fault or None, level, replicate, seed) of every unit (module docstring)."""
+    out = [(None, 0.0, r, unit_seed(seed, None, 0.0, r))
+           for r in range(2 * units * len(LEVELS))]
+    for fault in faults:
+        for q in LEVELS:
+            out += [(fault, q, r, unit_seed(seed, fault, q, r)) for r in range(units)]
+    return out
+
+
+def _job_id(job: tuple) -> str:
+    fault, q, r, seed = job
+    return f'{fault or "healthy"}/{q:g}/{r}/{seed}'
+
+
+def run_unit(job: tuple, scenario: Mapping[str, Any], design: EhaParams, model: str,
+             free: Sequence[str], control_period: float, faults: Sequence[str]
+             ) -> dict[str, Any]:
+    """One unit flown and diagnosed (without a model-form calibration): the record
+    :func:`fit` needs -- its truth, the verdict, the right hypothesis' estimate and standard
+    error in ``g``, its fit's RMS, and every single fault's fitted ``g`` (the healthy units'
+    set the verdict floor)."""
+    from .diagnosis import HEALTHY, diagnose
+    fault, q, _, seed = job
+    sig, truth, _ = unit_signals(fault, q, dict(scenario), seed, spread=SPREAD, design=design)
+    d = diagnose(sig, design, control_period=control_period, model=model, faults=faults,
+                 free=free, model_form=False)
+    n = 3 * len(d.recorded['t'])
+    right = next(c for c in d.candidates if c.fault == (fault or HEALTHY))
+    healthy = next(c for c in d.candidates if c.fault == HEALTHY)
+    top = min(d.candidates, key=lambda c: c.score)
+    rec = dict(id=_job_id(job), fault=fault, level=q, truth=truth, scenario=OWN,
+               named=None if d.best.fault == HEALTHY else d.best.fault,
+               rms=math.sqrt(right.rss / n),
+               # the fault this unit would be named with, whatever the floor: the best-scoring
+               # hypothesis where it is a fault scoring better than healthy
+               best=None if top.fault == HEALTHY or len(top.faults) != 1
+               or top.score >= healthy.score else [top.fault, fraction(top.fault,
+                                                                       top.severities[0])])
+    if fault is not None:
+        fitted = d.best if d.best.fault == fault else right
+        lo, hi = fitted.interval
+        rec.update(estimate=fitted.severity,
+                   se=(to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96))
+    return rec
+
+
+def fraction(fault: str, severity: float) -> float:
+    """How far ``severity`` lies toward ``fault``'s alarm value, in its coordinate ``g``."""
+    return abs(to_g(fault, severity)) / abs(to_g(fault, FAULTS[fault].demo))
+
+
+def verdict_fraction(records: Iterable[Mapping[str, Any]]) -> float:
+    """The verdict floor (module docstring): the largest fraction of the way to its alarm
+    value of the fault any healthy unit would have been named with; 0 where none would."""
+    healthy = [r for r in records if r['fault'] is None]
+    if not healthy:
+        raise TwinError('a flight calibration needs healthy units')
+    return max([r['best'][1] for r in healthy if r.get('best')], default=0.0)
+
+
+def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str]) -> dict[str, Any]:
+    """The calibration entry of a flight from its units' records."""
+    cal = fit_calibration(records)
+    own = cal.get('by_scenario', {}).get(OWN)
+    if own:
+        cal['faults'] = {**cal['faults'], **own}
+    u = verdict_fraction(records)
+    cal['verdict_fraction'] = u
+    cal['healthy_floor'] = {f: u * abs(to_g(f, FAULTS[f].demo)) for f in faults}
+    cal['healthy_units'] = sum(1 for r in records if r['fault'] is None)
+    return cal
+
+
+def entry_path(key: str) -> Path:
+    return cache_dir() / f'{key}.json'
+
+
+def cached(key: str) -> dict[str, Any] | None:
+    """The cached calibration of ``key``, or None. An entry that is not this version's
+    JSON is named in one line, never read silently."""
+    path = entry_path(key)
+    if not path.is_file():
+        return None
+    try:
+        cal = json.loads(path.read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        raise TwinError(f'{path} is not a flight calibration (damaged?): remove it and '
+                        'calibrate again') from None
+    if not isinstance(cal, dict) or cal.get('about', {}).get('version') != VERSION:
+        raise TwinError(f'{path} was written by another version of the flight calibration; '
+                        'remove it and calibrate again')
+    return cal
+
+
+def _unit(args):
+    return run_unit(*args)
+
+
+def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: str = 'SQ',
+                     free: Sequence[str] = (), control_period: float = 1e-3,
+                     faults: Sequence[str] | None = None, units: int = DEFAULT_UNITS,
+                     seed: int = 0, workers: int | None = None
+                     ) -> tuple[dict[str, Any], Path]:
+    """The flight's calibration (cached, or computed and cached): (entry, its path)."""
+    from ..progress import progress
+    from .diagnosis import DIAGNOSABLE
+    faults = list(DIAGNOSABLE if faults is None else faults)
+    if not 1 <= units <= 100:
+        raise TwinError(f'units must be 1 to 100 per fault and level, got {units}')
+    key = flight_key(scenario, design, model, free, control_period)
+    have = cached(key)
+    path = entry_path(key)
+    about = (have or {}).get('about', {})
+    if have is not None and (about.get('units'), about.get('seed'), about.get('faults')) == (
+            units, seed, faults):
+        return have, path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix('.partial.jsonl')
+    done: dict[str, dict] = {}
+    if partial.is_file():
+        for line in partial.read_text(encoding='utf-8').splitlines():
+            try:
+                rec = json.loads(line)
+                done[rec['id']] = rec
+            except (json.JSONDecodeError, KeyError, TypeError):
+                continue                        # a line cut by a kill: run that unit again
+    todo = [j for j in jobs(faults, units, seed) if _job_id(j) not in done]
+    args = [(j, dict(scenario), design, model, tuple(free), control_period, tuple(faults))
+            for j in todo]
+    with open(partial, 'a', encoding='utf-8') as out:
+        if todo:
+            n = workers or os.cpu_count() or 1
+            from .sweep import worker_init
+            # (workers ignore Ctrl-C and end with the parent, as a sweep's)
+            with ProcessPoolExecutor(max_workers=n, initializer=worker_init) as pool:
+                stream = pool.map(_unit, args) if n > 1 else map(_unit, args)
+                for rec in progress(stream, total=len(todo), desc='calibrate', unit='unit'):
+                    done[rec['id']] = rec
+                    out.write(json.dumps(rec) + '\n')
+                    out.flush()
+    cal = fit(list(done.values()), faults)
+    cal['about'] = dict(version=VERSION, key=key, model=model, free=sorted(free),
+                        units=units, seed=seed, faults=faults, spread=SPREAD,
+                        levels=list(LEVELS), inputs=_inputs(scenario),
+                        design={k: v for k, v in design.resolved().items()})
+    with output_file(path) as fh:
+        fh.write(json.dumps(cal, default=float) + '\n')
+    partial.unlink(missing_ok=True)
+    return cal, path
+
+
+def floor_of(cal: Mapping[str, Any] | None, fault: str) -> float | None:
+    """The flight's verdict floor of ``fault`` in ``g`` (None: no flight calibration)."""
+    floors = (cal or {}).get('healthy_floor')
+    return None if not floors or fault not in floors else float(floors[fault])
+
+
+def above_floor(cal: Mapping[str, Any] | None, fault: str, severity: float) -> bool | None:
+    """Whether ``severity`` lies beyond the flight's verdict floor (None: no floor)."""
+    if cal is None or 'verdict_fraction' not in cal:
+        return None
+    return bool(fraction(fault, severity) > cal['verdict_fraction'])
+
+
+__all__ = ['calibrate_flight', 'flight_key', 'cached', 'jobs', 'unit_seed', 'verdict_fraction',
+           'fraction', 'fit', 'above_floor', 'cache_dir', 'VERSION', 'OWN']
