@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from servovalve_twin import aot
+from servovalve_twin import aot, jitcache
 from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.fleet import simulate_many
 from servovalve_twin.physics.params import DEFAULTS
@@ -48,9 +48,9 @@ def test_the_compiled_loops_give_the_jits_bytes(built, model, monkeypatch):
         return getattr(built, aot.export_name(kind, model_id, sensed))
 
     for scn, ecu in ((paper, None), (paper, 1e-3), (noisy, 1e-3)):
-        monkeypatch.setattr(aot, 'aot_loop', lambda *a, **k: None)
+        monkeypatch.setattr(jitcache, 'aot_loop', lambda *a, **k: None)
         want = simulate(model, scn, ecu_period=ecu)
-        monkeypatch.setattr(aot, 'aot_loop', compiled)
+        monkeypatch.setattr(jitcache, 'aot_loop', compiled)
         got = simulate(model, scn, ecu_period=ecu)
         for name in want.signals:
             assert got.signals[name].tobytes() == want.signals[name].tobytes(), name
@@ -59,9 +59,9 @@ def test_the_compiled_loops_give_the_jits_bytes(built, model, monkeypatch):
     # a fleet of three units of their own (parameters, a fault from 0.4 s)
     units = [DEFAULTS, DEFAULTS.replace(M=1.1 * DEFAULTS.M), DEFAULTS.replace(CJ=0.8 * DEFAULTS.CJ)]
     faults = [(), (dict(at=0.4, fault='leakage_growth', severity=3.0),), ()]
-    monkeypatch.setattr(aot, 'aot_loop', lambda *a, **k: None)
+    monkeypatch.setattr(jitcache, 'aot_loop', lambda *a, **k: None)
     want = simulate_many(model, paper, units, ecu_period=1e-3, faults=faults)
-    monkeypatch.setattr(aot, 'aot_loop', compiled)
+    monkeypatch.setattr(jitcache, 'aot_loop', compiled)
     got = simulate_many(model, paper, units, ecu_period=1e-3, faults=faults)
     for a, b in zip(want, got):
         for name in a.signals:
@@ -77,14 +77,14 @@ def test_a_module_of_other_physics_or_the_jit_asked_for_is_not_used(monkeypatch)
     another processor (compiled for this one's instructions); nor with SERVOVALVE_TWIN_JIT
     set."""
     name = aot.module_name()
-    monkeypatch.setattr(aot, 'physics_stamp', lambda: b'\x01' * 32)
+    monkeypatch.setattr(jitcache, 'physics_stamp', lambda: b'\x01' * 32)
     assert aot.module_name() != name and aot.module_name().startswith(aot.PREFIX)
     aot._module.cache_clear()
     assert aot.aot_loop('steps', get_valve_model('C2').id) is None
     monkeypatch.undo()
     if aot.cpu_tag():
         assert name.endswith('_' + aot.cpu_tag())
-        monkeypatch.setattr(aot, 'cpu_tag', lambda: 'ffffffff')
+        monkeypatch.setattr(jitcache, 'cpu_tag', lambda: 'ffffffff')
         assert aot.module_name() != name
         aot._module.cache_clear()
         assert aot.aot_loop('steps', get_valve_model('C2').id) is None
@@ -102,7 +102,7 @@ def test_the_signature_is_the_one_simulate_calls_with(monkeypatch):
     sensors."""
     from servovalve_twin.physics.plant import jit_run_steps_for
     from servovalve_twin.physics.fleet import jit_run_fleet_for
-    monkeypatch.setattr(aot, 'aot_loop', lambda *a, **k: None)
+    monkeypatch.setattr(jitcache, 'aot_loop', lambda *a, **k: None)
     paper = load_scenario('paper')
     noisy = scenario_from_dict(dict(paper.to_dict(), sensors=dict(xj=dict(noise=1e-5))))
     mid = get_valve_model('C2').id
@@ -126,9 +126,9 @@ def test_a_run_on_the_compiled_loops_imports_no_numba(built):
     script = f'''
 import hashlib, importlib, sys
 sys.path.insert(0, {str(Path(built.__file__).parent)!r})
-from servovalve_twin import aot
-mod = importlib.import_module(aot.module_name())
-aot._module = lambda: mod
+from servovalve_twin import jitcache
+mod = importlib.import_module(jitcache.module_name())
+jitcache._module = lambda: mod
 from servovalve_twin.runs import simulate
 r = simulate('C2', 'paper', ecu_period=1e-3)
 print('numba' in sys.modules, hashlib.sha256(r['xj'].tobytes() + r['p12'].tobytes()).hexdigest())

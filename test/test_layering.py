@@ -180,3 +180,134 @@ def test_every_valve_model_lives_under_valves():
                 continue      # the loops that write the port columns (one unit, a fleet)
             assert token not in text, f'{f.name} mentions {token}'
     assert not (PACKAGE / 'physics' / 'hd.py').exists()
+
+
+#: the package's floors, bottom first: a module imports only from its own floor or below, and
+#: no module imports itself back through others (checked at file level). Utilities; the
+#: physics; what reads and writes it (bags, scenarios, the FMU, progpy, the AOT builder); runs;
+#: prognostics; the ROS nodes; the twin; the applications and the test helpers; the CLI; the
+#: entry points.
+FLOORS = (
+    ('errors', 'jitcache', 'outputs', 'progress'),
+    ('physics',),
+    ('aot', 'bag', 'config', 'fmu', 'progpy'),
+    ('runs',),
+    ('prognostics',),
+    ('nodes',),
+    ('twin',),
+    ('apps', 'testing'),
+    ('cli',),
+    ('__init__', '__main__', 'entry'),
+)
+
+
+def _module_graph(root: Path, top: str = 'servovalve_twin') -> dict[str, set[str]]:
+    """Every module of the package under ``root`` -> the modules of the package it imports
+    (anywhere in the file: a function-level import is an arrow too)."""
+    pkg_dir = root / top
+    mods = {}
+    for p in pkg_dir.rglob('*.py'):
+        if '__pycache__' in p.parts or p.name.startswith('_aot_loops_'):
+            continue
+        parts = list(p.relative_to(root).with_suffix('').parts)
+        if parts[-1] == '__init__':
+            parts = parts[:-1]
+        mods['.'.join(parts)] = p
+    graph = {}
+    for name, p in mods.items():
+        tree = ast.parse(p.read_text(encoding='utf-8'))
+        base = name.split('.') if p.name == '__init__.py' else name.split('.')[:-1]
+        found = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                mod = ('.'.join(base[:len(base) - node.level + 1] + ([node.module] if
+                                                                      node.module else []))
+                       if node.level else node.module or '')
+                found.add(mod)
+                found.update(f'{mod}.{a.name}' for a in node.names)
+        targets = set()
+        for m in found:
+            parts = m.split('.')
+            if parts[0] != top:
+                continue
+            while parts and '.'.join(parts) not in mods:
+                parts.pop()
+            if len(parts) > 1:                 # the top package itself: its __init__ only
+                targets.add('.'.join(parts))
+        graph[name] = targets - {name}
+    return graph
+
+
+def _floor(module: str) -> int:
+    room = module.split('.')[1] if '.' in module else '__init__'
+    for i, floor in enumerate(FLOORS):
+        if room in floor:
+            return i
+    raise AssertionError(f'{module} is on no floor of FLOORS: add it')
+
+
+def _climbs(graph) -> list[str]:
+    return sorted(f'{a} -> {b}' for a, deps in graph.items() for b in deps
+                  if _floor(b) > _floor(a))
+
+
+def _circles(graph) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_house_is_one_way():
+    """Every module on a floor of FLOORS, no import that climbs a floor, no import circle.
+    There were three circles (physics <-> aot, scenario <-> sensors, calibration <->
+    diagnosis <-> onset) and a climb (physics -> aot)."""
+    graph = _module_graph(ROOT)
+    assert len(graph) >= 90
+    assert not _climbs(graph)
+    assert not _circles(graph)
+
+
+def test_a_planted_climb_or_circle_is_seen(tmp_path):
+    """The checks above, on a copy of the package with a climb planted (the physics importing
+    the CLI) and then a circle (the bag reader and writer importing each other)."""
+    import shutil
+    shutil.copytree(PACKAGE, tmp_path / 'servovalve_twin',
+                    ignore=shutil.ignore_patterns('__pycache__', '*.so', 'data'))
+    jack = tmp_path / 'servovalve_twin' / 'physics' / 'jack.py'
+    original = jack.read_text()
+    jack.write_text(original + '\n\ndef _x():\n    from ..cli import main  # noqa\n')
+    assert _climbs(_module_graph(tmp_path)) == ['servovalve_twin.physics.jack -> '
+                                                'servovalve_twin.cli']
+    jack.write_text(original)
+    reader = tmp_path / 'servovalve_twin' / 'bag' / 'reader.py'
+    writer = tmp_path / 'servovalve_twin' / 'bag' / 'writer.py'
+    reader.write_text(reader.read_text() + '\nfrom . import writer  # noqa\n')
+    writer.write_text(writer.read_text() + '\nfrom . import reader  # noqa\n')
+    assert ['servovalve_twin.bag.reader', 'servovalve_twin.bag.writer'] in _circles(
+        _module_graph(tmp_path))

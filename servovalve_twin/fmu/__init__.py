@@ -25,9 +25,9 @@ from ..physics.valves import get_valve_model
 SLAVE_MODULE = 'servovalve_twin_eha'
 #: what the importing tool's Python must have (the physics is numpy and numba-compiled loops)
 REQUIRES = ('numpy', 'numba')
-#: the package files the slave's physics imports (physics/ whole; checked by a test); aot.py
-#: finds no compiled module inside the FMU, so its loops come from the JIT
-CARRIED = ('__init__.py', 'errors.py', 'jitcache.py', 'aot.py', 'physics')
+#: the package files the slave's physics imports (physics/ whole; checked by a test);
+#: jitcache.py's loader finds no compiled module inside the FMU, so its loops come from the JIT
+CARRIED = ('__init__.py', 'errors.py', 'jitcache.py', 'physics')
 #: the name the carried copy has inside the FMU: not ``servovalve_twin``, which it would shadow
 #: in the importing process (pythonfmu puts the FMU's resources first on ``sys.path``; a
 #: process that loaded the FMU then failed to import ``servovalve_twin.prognostics`` -- a Dask

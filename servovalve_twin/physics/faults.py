@@ -14,6 +14,8 @@ Scenario schema::
 
 from __future__ import annotations
 
+import math
+
 import dataclasses
 from typing import Any, Mapping, Sequence
 
@@ -39,6 +41,21 @@ class FaultSpec:
     def healthy(self) -> float:
         """The severity that leaves the unit as it is: 1 for a multiplier, 0 otherwise."""
         return 1.0 if self.kind == 'scale' else 0.0
+
+    def to_g(self, s: float) -> float:
+        """A severity in the fault's own coordinate ``g``: the logarithm of a multiplier
+        (healthy 1 -> 0), a fraction or a value as a share of the way from healthy to the alarm
+        value -- the coordinate in which diagnosis calibrates and states sizes (a leak's error
+        grows with its size; a loss's does not)."""
+        if self.kind == 'scale':
+            return math.log(max(s, 1e-12) / self.healthy)
+        return (s - self.healthy) / abs(self.demo - self.healthy)
+
+    def from_g(self, g: float) -> float:
+        """The severity at ``g`` (the inverse of :meth:`to_g`)."""
+        if self.kind == 'scale':
+            return self.healthy * math.exp(g)
+        return self.healthy + g * abs(self.demo - self.healthy)
 
     def severity_of(self, nominal: EhaParams, value: float) -> float:
         """The inverse of :meth:`value`: the severity at which the parameter is ``value``,

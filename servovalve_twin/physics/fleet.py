@@ -35,7 +35,7 @@ def run_fleet_for(model_id: int):
     """The fleet loop of the valve model with registry id ``model_id``: compiled ahead of time
     where the module of the current physics is built (:mod:`servovalve_twin.aot`), else
     :func:`jit_run_fleet_for`'s."""
-    from ..aot import aot_loop
+    from ..jitcache import aot_loop
     return aot_loop('fleet', model_id) or jit_run_fleet_for(model_id)
 
 

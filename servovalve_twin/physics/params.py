@@ -259,21 +259,32 @@ def _hd_key(p: 'EhaParams') -> tuple:
     return tuple(float(p.value(n)) if n != 'Pcav' else float(p.Pcav) for n in HD_INPUTS)
 
 
+#: the function that computes (XSS, GPQ) of a design from HD: physics.valves.calibration, which
+#: solves HD -- a module above this one, so it registers itself here (physics/__init__ imports
+#: it) rather than being imported from here (that was a circle: params -> calibration -> hd ->
+#: params)
+_HD_CALIBRATION: list = []
+
+
+def register_hd_calibration(fn) -> None:
+    """Set the function ``fn(params) -> (XSS, GPQ)`` that derives the simplified models' gains
+    of a design (:func:`.valves.calibration.hd_gains`)."""
+    _HD_CALIBRATION[:] = [fn]
+
+
 def hd_constants(p: 'EhaParams') -> tuple[float, float]:
     """(XSS, GPQ) of ``p``'s design: HD's calibration, computed once per design."""
     key = _hd_key(p)
     got = _HD_CONSTANTS.get(key)
     if got is None:
-        # imported here: the calibration solves HD, which reads these parameters
-        from .valves.calibration import calibrate
-        # (given values, any: the calibration's inputs do not include them)
+        if not _HD_CALIBRATION:
+            raise ParameterError('XSS and GPQ are derived from HD, whose calibration is not '
+                                 'loaded (import servovalve_twin.physics); or give them')
         try:
-            cal = calibrate(p.replace(XSS=_DEFAULT_HD_CONSTANTS[0],
-                                      GPQ=_DEFAULT_HD_CONSTANTS[1]))
+            got = _HD_CALIBRATION[0](p)
         except TwinError as exc:
             raise ParameterError(f'XSS and GPQ cannot be derived for this design ({exc}); give '
                                  'them: --param XSS=... --param GPQ=...') from None
-        got = (cal['XSS'], cal['GPQ'])
         if len(_HD_CONSTANTS) > 256:
             _HD_CONSTANTS.clear()
         _HD_CONSTANTS[key] = got

@@ -67,7 +67,7 @@ def run_steps_for(model_id: int, sensed: bool = False):
     """The step loop of the valve model with registry ``id`` = ``model_id``: compiled ahead of
     time where the module of the current physics is built (:mod:`servovalve_twin.aot`), else
     :func:`jit_run_steps_for`'s -- the same source, the same bytes out (tested)."""
-    from ..aot import aot_loop
+    from ..jitcache import aot_loop
     return aot_loop('steps', model_id, sensed) or jit_run_steps_for(model_id, sensed)
 
 

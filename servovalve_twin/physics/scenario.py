@@ -32,6 +32,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ScenarioError
+from .values import number as _number, short as _short
 from .signals import INPUTS
 
 SIGNALS = INPUTS
@@ -43,25 +44,6 @@ _SINE_KEYS = {'offset', 'amplitude', 'frequency', 'phase', 'start'}
 _MAX_DURATION = 3600.0
 #: the supply-return pressure the models accept: PSRN's upper bound
 _PSR_MAX = 1.0e8
-
-
-def _number(value: Any, where: str) -> float:
-    """A finite float from a number or a numeric string (YAML 1.1 reads ``2e-13`` as text)."""
-    if isinstance(value, bool):
-        raise ScenarioError(f'{where}: expected a number, got {_short(value)}')
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ScenarioError(f'{where}: expected a number, got {_short(value)}') from None
-    if not math.isfinite(x):
-        raise ScenarioError(f'{where}: expected a finite number, got {_short(value)}')
-    return x
-
-
-def _short(value: Any, limit: int = 120) -> str:
-    """A value's repr for an error line, cut to ``limit`` characters."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit] + f'... ({len(text)} characters)'
 
 
 def _ns(t: float) -> int:

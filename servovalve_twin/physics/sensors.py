@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import ScenarioError
 from ..jitcache import jit
-from .scenario import _number
+from .values import number as _number
 
 #: the signals a sensor can measure (the plant's outputs; Com, FR, PSR are inputs, Cor the
 #: ECU's own output, QJ = AJ*DXJ a model quantity no sensor reads)

@@ -146,27 +146,23 @@ def past_by(fault: str, g: float) -> float:
 
 
 def to_g(fault: str, s: float) -> float:
-    """A severity in the fault's calibration coordinate (see the module docstring)."""
-    f = FAULTS[fault]
-    if f.kind == 'scale':
-        return math.log(max(s, 1e-12) / f.healthy)
-    return (s - f.healthy) / abs(f.demo - f.healthy)
+    """A severity in the fault's calibration coordinate (:meth:`.FaultSpec.to_g`)."""
+    return FAULTS[fault].to_g(s)
 
 
 def from_g(fault: str, g: float) -> float:
-    f = FAULTS[fault]
-    if f.kind == 'scale':
-        return f.healthy * math.exp(g)
-    return f.healthy + g * abs(f.demo - f.healthy)
+    return FAULTS[fault].from_g(g)
 
 
 def unit_signals(fault: str | None, q: float, scenario: Any, seed: int, *,
                  spread: float = 1.0, noise_gain: float | None = None,
-                 onset: float = 0.0, design: EhaParams = DEFAULTS
+                 onset: float = 0.0, design: EhaParams = DEFAULTS,
+                 severity: float | None = None
                  ) -> tuple[dict[str, np.ndarray], float | None, EhaParams]:
     """One HD unit's measured run: (signals, the true severity read against the design, the
     unit's parameters). ``spread`` scales :data:`VARY`; ``noise_gain`` scales :data:`NOISE`
-    (default: drawn log-uniform in [0.5, 2]); ``onset``: when the fault starts."""
+    (default: drawn log-uniform in [0.5, 2]); ``onset``: when the fault starts; ``severity``:
+    the fault's, instead of the level ``q``'s."""
     from ..config import load_scenario
     from ..runs import simulate
     from .sweep import draw_nuisance, measured
@@ -180,7 +176,7 @@ def unit_signals(fault: str | None, q: float, scenario: Any, seed: int, *,
     truth = None
     if fault is not None:
         spec = FAULTS[fault]
-        sev = severity_at(fault, q)
+        sev = severity_at(fault, q) if severity is None else float(severity)
         scn['faults'] = [{'at': float(onset), 'fault': fault, 'severity': sev}]
         truth = spec.severity_of(design, resolve(fault, sev, unit)[spec.param])
     sig = simulate('HD', scn, params=unit, ecu_period=1e-3).signals
@@ -197,7 +193,7 @@ def calibration_jobs(units: int, seed: int) -> list[tuple]:
     """(fault or None, level, scenario name, seed) of the calibration set: ``units`` per
     fault, level and scenario, then :data:`EXTRA_UNITS` more at severities drawn between the
     levels (after the first ones, which thus do not depend on how many extra ones there are)."""
-    from .diagnosis import DIAGNOSABLE
+    from .rules import DIAGNOSABLE
     jobs = []
     rounds = [(scen, units, None) for scen in CAL_SCENARIOS]
     rounds += [(scen, n, 'between') for scen, n in EXTRA_UNITS.items()]
@@ -234,7 +230,7 @@ def onset_jobs(units: int, seed: int) -> list[tuple]:
     them, severities drawn between the levels, onsets in :data:`ONSET_WINDOW` of the flight;
     seeds of their own (apart from :func:`calibration_jobs`' and from the benches')."""
     from ..config import load_scenario
-    from .diagnosis import DIAGNOSABLE
+    from .rules import DIAGNOSABLE
     jobs = []
     for scen in ONSET_SCENARIOS:
         duration = load_scenario(CAL_SCENARIOS[scen]).duration
@@ -490,7 +486,7 @@ def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any],
     answers there as much as those at the catalog's end (the bench's intervals held 140 of
     146 for a stated 90 %, a gain loss of 0.71 answered [0.65, 0.78]). Pooled over the flights
     (two units per fault and flight)."""
-    from .diagnosis import onset_entry
+    from .rules import onset_entry
     out = {}
     for fault in sorted({r['fault'] for r in records if r['fault']}):
         rows = []

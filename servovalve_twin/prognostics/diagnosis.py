@@ -72,25 +72,15 @@ from ..physics.faults import FAULTS
 from ..physics.params import PARAM_FIELDS, PARAM_NAMES, EhaParams
 from .fitting import (SIGNALS, Problem, bootstrap_intervals, effective_n, fit, jacobian_interval,
                       ratio_interval, start_grid)
+from .rules import (DETECTABLE, DIAGNOSABLE, ONSET_ENTRY, PAIR_EVIDENCE, above_floor,
+                    onset_entry, sized)
 from .verdict import HEALTHY, UNEXPLAINED, Candidate, Diagnosis
 
-#: the catalog faults a simplified model can see (HD's geometry, e.g. clearance, it has not)
-DIAGNOSABLE = tuple(n for n, f in FAULTS.items()
-                    if PARAM_FIELDS[f.param].metadata['group'] != 'hd')
 #: no hypothesis explains a run whose best fit's RMS exceeds UNEXPLAINED_FACTOR times the
 #: REFERENCE_QUANTILE of the right hypotheses' fits in the calibration set (the quantile, not
 #: the maximum: a few fits of the set itself stop in a wrong valley)
 REFERENCE_QUANTILE = 0.98
 UNEXPLAINED_FACTOR = 1.5
-#: the smallest fault reported, as a fraction of the way from healthy to its alarm severity in
-#: the fault's calibration coordinate (:func:`.calibration.to_g`)
-DETECTABLE = 0.2
-#: how much lower (better) a pair's score must be than each of its two single faults' to be
-#: reported: "very strong" evidence on Kass and Raftery's BIC scale
-PAIR_EVIDENCE = 10.0
-#: the calibration entry of answers refitted at an onset (:data:`.calibration.ONSET_UNITS`),
-#: pooled over the onset flights; ``onset:<scenario>`` is one flight's own
-ONSET_ENTRY = 'onset'
 #: severities per fault of a pair's start grid
 PAIR_GRID = 5
 #: without --pairs, a pair of the verdict's fault and another that beats the verdict by
@@ -402,7 +392,13 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
         return
     best.raw = (best.severity, best.interval)
     sevs, ivs = [], []
+    from .calibration import fault_calibration
     for f, s, iv in zip(best.faults, best.severities, best.intervals):
+        if fault_calibration(cal, f, scenario) is None:
+            # never a noise-only interval stated as calibrated without a word
+            d.warnings.append(f'the model-form calibration has no entry for {f} (too few of '
+                              'its units were named): its interval counts the measurement '
+                              'noise only and may be too narrow')
         s, iv, _ = model_form_estimate(cal, f, s, iv, scenario)
         sevs.append(s)
         ivs.append(iv)
@@ -503,20 +499,6 @@ def _one_sided(fault: str, interval: tuple[float, float]) -> str:
     return f'{fault} {">=" if up else "<="} {near:.4g}'
 
 
-def sized(fault: str, severity: float, fraction: float = DETECTABLE) -> bool:
-    """``severity`` at least ``fraction`` (DETECTABLE) of the way from healthy to the fault's
-    alarm value, in its calibration coordinate."""
-    from .calibration import to_g
-    return abs(to_g(fault, severity)) >= fraction * abs(to_g(fault, FAULTS[fault].demo))
-
-
-def onset_entry(cal: Mapping[str, Any] | None, scenario: str | None) -> str:
-    """The calibration entry of an answer refitted at an onset on ``scenario``: the flight's
-    own onset units' where the calibration has them, else those of every onset flight."""
-    own = f'{ONSET_ENTRY}:{scenario}'
-    return own if own in ((cal or {}).get('by_scenario') or {}) else ONSET_ENTRY
-
-
 def _unbiased(cal: Mapping[str, Any] | None, fault: str, severity: float,
               scenario: str | None) -> float:
     """``severity`` less the model's calibrated bias on ``fault`` (the scenario's own entry
@@ -552,7 +534,6 @@ def _detectable(c: Candidate, fraction: float = DETECTABLE,
     own calibration where ``cal`` is one (:mod:`.flight_calibration`: what no healthy unit of
     this flight and design fitted), else :func:`sized`, after the model-form correction of
     ``cal`` where one is given."""
-    from .flight_calibration import above_floor
     out = True
     for f, s in zip(c.faults, c.severities):
         beyond = above_floor(cal, f, s) if fraction == DETECTABLE else None

@@ -51,6 +51,7 @@ from ..outputs import output_file
 from ..physics.faults import FAULTS
 from ..physics.params import EhaParams
 from .calibration import LEVELS, fit_calibration, to_g, unit_signals
+from .rules import above_floor, fraction
 
 #: the method's version: a cache entry of another is not read (its key differs)
 VERSION = 1
@@ -146,11 +147,6 @@ def run_unit(job: tuple, scenario: Mapping[str, Any], design: EhaParams, model: 
     return rec
 
 
-def fraction(fault: str, severity: float) -> float:
-    """How far ``severity`` lies toward ``fault``'s alarm value, in its coordinate ``g``."""
-    return abs(to_g(fault, severity)) / abs(to_g(fault, FAULTS[fault].demo))
-
-
 def verdict_fraction(records: Iterable[Mapping[str, Any]]) -> float:
     """The verdict floor (module docstring): the largest fraction of the way to its alarm
     value of the fault any healthy unit would have been named with; 0 where none would."""
@@ -205,7 +201,7 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
                      ) -> tuple[dict[str, Any], Path]:
     """The flight's calibration (cached, or computed and cached): (entry, its path)."""
     from ..progress import progress
-    from .diagnosis import DIAGNOSABLE
+    from .rules import DIAGNOSABLE
     faults = list(DIAGNOSABLE if faults is None else faults)
     if not 1 <= units <= 100:
         raise TwinError(f'units must be 1 to 100 per fault and level, got {units}')
@@ -251,18 +247,5 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
     return cal, path
 
 
-def floor_of(cal: Mapping[str, Any] | None, fault: str) -> float | None:
-    """The flight's verdict floor of ``fault`` in ``g`` (None: no flight calibration)."""
-    floors = (cal or {}).get('healthy_floor')
-    return None if not floors or fault not in floors else float(floors[fault])
-
-
-def above_floor(cal: Mapping[str, Any] | None, fault: str, severity: float) -> bool | None:
-    """Whether ``severity`` lies beyond the flight's verdict floor (None: no floor)."""
-    if cal is None or 'verdict_fraction' not in cal:
-        return None
-    return bool(fraction(fault, severity) > cal['verdict_fraction'])
-
-
 __all__ = ['calibrate_flight', 'flight_key', 'cached', 'jobs', 'unit_seed', 'verdict_fraction',
-           'fraction', 'fit', 'above_floor', 'cache_dir', 'VERSION', 'OWN']
+           'fit', 'cache_dir', 'VERSION', 'OWN']

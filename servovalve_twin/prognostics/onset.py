@@ -14,7 +14,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ..physics.faults import FAULTS
-from .diagnosis import PAIR_EVIDENCE, sized
+from .rules import PAIR_EVIDENCE, sized
 from .fitting import (CHI2_95, SIGNALS, Problem, effective_n, fit, jacobian_interval,
                       start_grid)
 from .verdict import HEALTHY, Candidate

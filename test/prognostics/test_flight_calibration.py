@@ -14,6 +14,7 @@ from servovalve_twin.errors import TwinError
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics import flight_calibration as fc
+from servovalve_twin.prognostics import rules
 from servovalve_twin.prognostics.calibration import to_g
 
 FLIGHT = {'duration': 0.3, 'com': [[0.0, 0.0], [0.05, 0.02]], 'fr': [[0.0, 0.0], [0.1, 3000.0]],
@@ -65,10 +66,10 @@ def test_the_verdict_floor_is_the_largest_size_a_healthy_unit_would_be_named_wit
         fc.verdict_fraction([dict(fault='leakage_growth')])
     cal = {'verdict_fraction': 0.25}
     leak_at = 10 ** 0.25                          # a leak multiplier: g = log10
-    assert fc.fraction('leakage_growth', leak_at) == pytest.approx(0.25)
-    assert fc.above_floor(cal, 'leakage_growth', leak_at * 1.001) is True
-    assert fc.above_floor(cal, 'leakage_growth', leak_at / 1.001) is False
-    assert fc.above_floor(None, 'leakage_growth', 5.0) is None
+    assert rules.fraction('leakage_growth', leak_at) == pytest.approx(0.25)
+    assert rules.above_floor(cal, 'leakage_growth', leak_at * 1.001) is True
+    assert rules.above_floor(cal, 'leakage_growth', leak_at / 1.001) is False
+    assert rules.above_floor(None, 'leakage_growth', 5.0) is None
     g = to_g('supply_loss', 0.3 * 0.25)
     assert abs(g) == pytest.approx(0.25 * abs(to_g('supply_loss', FAULTS['supply_loss'].demo)))
 

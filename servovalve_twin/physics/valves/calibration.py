@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 from ...errors import ModelError
-from ..params import EhaParams
+from ..params import EhaParams, register_hd_calibration
 from .hd import hd_ports
 
 
@@ -53,3 +53,14 @@ def calibrate(params: EhaParams) -> dict[str, float]:
     gqn = qj0 / params.XSM
     gpq = gp / gqn
     return dict(XSS=xss, GPN=gp, GQN=gqn, GPQ=gpq, k=params.CLk * gpq)
+
+
+def hd_gains(params: EhaParams) -> tuple[float, float]:
+    """(XSS, GPQ) of the design ``params``: :func:`calibrate`'s (the parameters' own XSS and
+    GPQ, given or not, are not among its inputs)."""
+    cal = calibrate(params.replace(XSS=1e-5, GPQ=1e12))
+    return cal['XSS'], cal['GPQ']
+
+
+# EhaParams derives XSS and GPQ through this when they are not given
+register_hd_calibration(hd_gains)
