@@ -54,8 +54,8 @@ Verdicts (``status``):
   severity uncertainty, the trend's and the choice of model. The parameters are drawn from a
   normal, or a Student t where the scatter was estimated from the flights (``c > 1``).
 
-Measured on seeded histories the method was not built on: doc/results/prognosis.md
-(``bench/bench_prognosis.py``).
+Measured on seeded histories the method was not built on: doc/results/diagnosis.md, section
+Prognosis (``bench/bench_prognosis.py``).
 """
 
 from __future__ import annotations
@@ -159,16 +159,15 @@ class Trend:
 
 
 def _first_root(a, b, c, sign):
-    """The smallest x >= 0 at which a + b x + c x^2 reaches 0 from ``sign``'s side below it
-    (``sign`` 1: from below); -inf where it is there already (a >= 0 for sign 1), inf where it
-    never is."""
+    """Per row, the smallest x > 0 at which ``sign * (a + b x + c x^2)`` rises to 0 (``sign``
+    1: a severity growing to its threshold, -1: falling to it); -inf where it is there already
+    (``sign * a >= 0``), inf where it never is."""
     a, b, c = sign * a, sign * b, sign * c
     disc = b * b - 4 * a * c
     root = np.sqrt(np.maximum(disc, 0.0))
-    # the two roots, computed without cancellation
+    # the two roots, computed without cancellation: q/c and a/q
     q = -0.5 * (b + np.copysign(root, b))
-    r1 = np.where(q != 0, c * 0 + np.divide(q, c, out=np.full_like(q, np.inf), where=c != 0),
-                  np.inf)
+    r1 = np.divide(q, c, out=np.full_like(q, np.inf), where=c != 0)
     r2 = np.divide(a, q, out=np.full_like(q, np.inf), where=q != 0)
     lin = np.divide(-a, b, out=np.full_like(a, np.inf), where=b != 0)
     r1 = np.where(c == 0, lin, r1)
