@@ -50,11 +50,24 @@ class BagRun:
         return self.provenance.control_period
 
 
+def check_signal_types(bag: AnyBag) -> None:
+    """Refuse a bag in which a topic named as one of the twin's signals (under its namespace)
+    has another type than std_msgs/Float64: read by type, such a topic was left out without a
+    word (an altered sqlite3 bag's /xj made `compare` drop XJ and compare the rest)."""
+    ns = bag.provenance.namespace or ''
+    for name, info in bag.topics.items():
+        own = name[len(ns):] if ns and name.startswith(ns + '/') else name
+        if own[1:] in CSV_COLUMNS[1:] and info.type != FLOAT64:
+            raise BagError(f'bag {str(bag.path)!r}: topic {name} has type {info.type!r}; the '
+                           f"twin's signals are {FLOAT64} (the bag was altered?)")
+
+
 def float64_series(bag: AnyBag, topics=None, counts: dict[str, int] | None = None
                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``{topic: (log times ns, values)}`` of the bag's std_msgs/Float64 topics (or of
     ``topics`` among them), each in log-time order. ``counts``: read every topic, and count
     each one's messages into it."""
+    check_signal_types(bag)
     f64 = set(bag.topics_of_type(FLOAT64))
     if topics is not None:
         f64 &= set(topics)
@@ -168,6 +181,7 @@ def iter_float64_blocks(bag: AnyBag, topics=None, *, counts: dict[str, int] | No
     import bisect
     block_messages = block_messages or BLOCK_MESSAGES
     p = bag.path
+    check_signal_types(bag)
     f64 = set(bag.topics_of_type(FLOAT64))
     if topics is not None:
         f64 &= set(topics)

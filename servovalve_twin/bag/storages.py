@@ -498,16 +498,25 @@ class Sqlite3Storage(Storage):
             if end_ns is not None:
                 where.append('timestamp <= ?')
                 args.append(int(end_ns))
-            sql = ('SELECT topic_id, timestamp, data FROM messages'
+            sql = ('SELECT topic_id, timestamp, data, id FROM messages'
                    + (' WHERE ' + ' AND '.join(where) if where else '')
                    + ' ORDER BY timestamp, id')
-            for tid, t, data in con.execute(sql, args):
+            last_id: dict[int, int] = {}
+            for tid, t, data, rid in con.execute(sql, args):
                 if tid not in names or type(t) is not int or type(data) is not bytes:
                     # no checksum: a damaged row is recognised by what it cannot be
                     raise BagError(f'{str(f)!r} is corrupt: a message row with topic id '
                                    f'{tid!r}, timestamp {t!r}, data of type '
                                    f'{type(data).__name__} (expected a topic of the file, an '
                                    'integer time and bytes)')
+                # a recorder inserts one topic's messages as they arrive, so their rows and
+                # their times rise together; times that fall as the rows rise were rewritten
+                # (every timestamp reversed was read as a valid run by evaluate)
+                if rid < last_id.get(tid, -1):
+                    raise BagError(f'{str(f)!r} is corrupt: on {names[tid]} the message times '
+                                   'run backwards against the order the messages were '
+                                   'recorded in (altered? sqlite3 keeps no checksum)')
+                last_id[tid] = rid
                 yield names[tid], t, data
         except sqlite3.DatabaseError as exc:
             raise BagError(f'{str(f)!r} is not a readable rosbag2 sqlite3 file ({exc})'

@@ -7,6 +7,7 @@ the ``mcap`` library's own reader, not through this package's storages."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import struct
 
@@ -339,6 +340,35 @@ SQLITE_DAMAGE = {
         f'ORDER BY timestamp LIMIT 1 OFFSET 300)',
         'metadata.yaml counts'),
 }
+
+
+@pytest.mark.parametrize('sql, fragment', [
+    ('UPDATE messages SET timestamp = (SELECT MAX(timestamp) FROM messages) - timestamp',
+     'the message times run backwards against the order the messages were recorded in'),
+    ("UPDATE topics SET type = 'this/msg/Foo' WHERE name = '/xj'", "this/msg/Foo"),
+], ids=['every timestamp reversed', "/xj's type changed"])
+def test_an_altered_sqlite3_bag_is_refused_by_every_command(layouts, tmp_path, capsys, sql,
+                                                            fragment):
+    """Every timestamp reversed was accepted by evaluate; /xj's type changed to an unknown one
+    made compare drop XJ and compare the rest, rc 0. Both are one line, exit 2, now."""
+    import shutil
+    import sqlite3
+    bags, _, _ = layouts
+    bag = tmp_path / 'b'
+    shutil.copytree(bags['sqlite3'][0], bag)
+    (f,) = bag.glob('*.db3')
+    con = sqlite3.connect(f)
+    con.execute(sql)
+    con.commit()
+    con.close()
+    with pytest.raises(BagError, match=re.escape(fragment)):
+        read_bag(bag)
+    for args in (['evaluate', str(bag), '--algorithm',
+                  'servovalve_twin.prognostics.monitor:MonitorAlgorithm'],
+                 ['compare', '@paper_HD', str(bag)]):
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and err.count('\n') == 1, err
 
 
 @pytest.mark.parametrize('damage', SQLITE_DAMAGE)
