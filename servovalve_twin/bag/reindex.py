@@ -305,6 +305,13 @@ def _file_metadata(f: Path) -> dict[str, Any]:
 
 def _storage_files(p: Path) -> tuple[Path, list[Path]]:
     if p.is_file():
+        listed = _listed_files(p.parent)
+        if listed is not None and listed != [p.name]:
+            # rebuilding this file alone would write a metadata.yaml that lists it alone,
+            # over the one of the bag beside it (another bag's, or this file's with others)
+            raise BagError(f'{str(p.parent / "metadata.yaml")!r} describes a bag of '
+                           f'{listed or "no files"}, not of {p.name} alone: reindex the '
+                           f'directory, or move {p.name} into a directory of its own')
         return p.parent, [p]
     if not p.is_dir():
         raise BagError(f'no bag at {str(p)!r}: not a directory or a storage file')
@@ -314,6 +321,20 @@ def _storage_files(p: Path) -> tuple[Path, list[Path]]:
             return p, files
     raise BagError(f'no bag at {str(p)!r}: no storage file ('
                    + ', '.join(s.suffix for s in STORAGES.values()) + ')')
+
+
+def _listed_files(bag_dir: Path) -> list[str] | None:
+    """The storage files an existing metadata.yaml of ``bag_dir`` lists (None: there is none;
+    [] where it lists none or cannot be read)."""
+    f = bag_dir / 'metadata.yaml'
+    if not f.is_file():
+        return None
+    try:
+        raw = safe_load(f.read_text(encoding='utf-8'))
+        files = raw['rosbag2_bagfile_information'].get('relative_file_paths') or []
+        return sorted(Path(str(x)).name for x in files)
+    except Exception:  # noqa: BLE001 -- unreadable: it is still not ours to replace
+        return []
 
 
 def reindex(path: str | Path) -> dict[str, Any]:

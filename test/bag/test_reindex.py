@@ -131,3 +131,21 @@ def test_reindex_memory_does_not_grow_with_the_bag(tmp_path):
     print(f'2 M messages: peak RSS {before_mb} MiB after writing, {after_mb} MiB after reindex')
     assert count == 2_000_000
     assert after_mb - before_mb < 150
+
+
+def test_a_metadata_yaml_of_another_bag_is_never_replaced(tmp_path, capsys):
+    """`reindex dir/other.mcap` in a directory whose metadata.yaml describes another bag
+    replaced it with one listing other.mcap alone: the other bag lost its description. Now
+    one line, exit 2, the metadata.yaml as it was; the file's own bag (its metadata listing it
+    alone) is rebuilt as before."""
+    times = np.arange(200) * 1_000_000
+    _bag(tmp_path / 'b', times)
+    other = tmp_path / 'b' / 'other.mcap'
+    other.write_bytes((tmp_path / 'b' / 'b_0.mcap').read_bytes())
+    before = (tmp_path / 'b' / 'metadata.yaml').read_bytes()
+    assert main(['reindex', str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "describes a bag of ['b_0.mcap'], not of other.mcap alone" in err
+    assert err.count('\n') == 1
+    assert (tmp_path / 'b' / 'metadata.yaml').read_bytes() == before
+    assert main(['reindex', str(tmp_path / 'b' / 'b_0.mcap')]) == 0
