@@ -86,7 +86,9 @@ class Diagnose(Command):
         if args.limits is not None:
             if args.bag is not None:
                 raise TwinError('diagnose takes BAG or --limits SCENARIO, not both')
-            return _print_limits(args, free, parse_faults(args.faults))
+            from ..prognostics.excitation import LIMITS_FREE
+            return _print_limits(args, LIMITS_FREE if args.free is None else free,
+                                 parse_faults(args.faults))
         if args.onset_at is not None:
             raise TwinError('--onset-at goes with --limits SCENARIO (a fit finds the onset '
                             'with --onset)')
@@ -166,7 +168,8 @@ def _print_limits(args: argparse.Namespace, free: tuple[str, ...],
     if args.json:
         write_json(args.json, dict(scenario=scn.name, model=args.model, free=list(free),
                                    onset=onset, limits=[x.to_json() for x in lims]))
-    print(format_limits({scn.name + (f' (faults from {onset:g} s)' if onset else ''): lims}))
+    print(format_limits({scn.name + (f' (faults from {onset:g} s)' if onset else ''): lims},
+                        free))
     return 0
 
 
