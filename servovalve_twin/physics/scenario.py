@@ -42,6 +42,8 @@ _KEYS = ({'name', 'description', 'duration', 'params', 'windows', 'faults', 'sen
          | set(SIGNALS))
 _SINE_KEYS = {'offset', 'amplitude', 'frequency', 'phase', 'start'}
 _MAX_DURATION = 3600.0
+#: the most breakpoints of one signal (a scenario file, at most 1 MB, holds fewer)
+MAX_BREAKPOINTS = 100_000
 #: the supply-return pressure the models accept: PSRN's upper bound
 _PSR_MAX = 1.0e8
 
@@ -321,6 +323,10 @@ def _profile(raw: Any, signal: str, duration: float) -> Profile:
     if not isinstance(raw, (list, tuple)) or not raw:
         raise ScenarioError(f'{where}: expected a non-empty list of [t, value] breakpoints, '
                             f'got {_short(raw)}')
+    if len(raw) > MAX_BREAKPOINTS:
+        # (a bag's provenance is not bounded as a scenario file is: 10^6 breakpoints took
+        # longer than 90 s to read)
+        raise ScenarioError(f'{where}: {len(raw)} breakpoints; at most {MAX_BREAKPOINTS}')
     points = []
     for i, item in enumerate(raw):
         if not isinstance(item, (list, tuple)) or len(item) != 2:
@@ -330,8 +336,11 @@ def _profile(raw: Any, signal: str, duration: float) -> Profile:
     times = [t for t, _ in points]
     if points[0][0] != 0.0:
         raise ScenarioError(f'{where}: the first breakpoint must be at t = 0, got {times[0]}')
-    if any(b <= a for a, b in zip(times, times[1:])):
-        raise ScenarioError(f'{where}: breakpoint times must increase strictly, got {times}')
+    bad = next((i for i, (a, b) in enumerate(zip(times, times[1:])) if b <= a), None)
+    if bad is not None:
+        raise ScenarioError(f'{where}: breakpoint times must increase strictly, got '
+                            f'{times[bad]} then {times[bad + 1]} (breakpoints {bad} and '
+                            f'{bad + 1})')
     if times[-1] > duration:
         raise ScenarioError(f'{where}: breakpoint at t = {times[-1]} s lies after the duration '
                             f'{duration} s')

@@ -57,7 +57,11 @@ def test_ramp_and_sine():
     ({'duratoin': 1.0}, "unknown scenario key 'duratoin'"),
     ({'com': [[0.1, 0.0]]}, 'first breakpoint must be at t = 0'),
     ({'com': [[0.0, 0.0], [0.5, 'x']]}, 'expected a number'),
-    ({'com': [[0.0, 0.0], [0.5, 1.0], [0.4, 0.0]]}, 'must increase strictly'),
+    ({'com': [[0.0, 0.0], [0.5, 1.0], [0.4, 0.0]]},
+     'must increase strictly, got 0.5 then 0.4 (breakpoints 1 and 2)'),
+    # (a bag's provenance may carry any scenario: 10^6 breakpoints took over 90 s)
+    ({'duration': 3600.0, 'com': [[i * 1e-3, 0.0] for i in range(100_001)]},
+     '100001 breakpoints; at most 100000'),
     ({'duration': 0.5, 'com': [[0.0, 0.0], [0.6, 1.0]]}, 'after the duration'),
     ({'duration': 0.0005}, 'whole number of milliseconds'),
     ({'fr': {'sawtooth': []}}, 'expected a list'),
