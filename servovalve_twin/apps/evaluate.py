@@ -19,7 +19,7 @@ from ..bag.anybag import AnyBag, open_any_bag
 from ..bag.reader import FLOAT64, iter_float64_blocks
 from ..errors import BagError
 from ..physics.params import EhaParams
-from ..prognostics.algorithm import AlgorithmRun, AlgorithmRunner, load_algorithm
+from ..prognostics.algorithm import AlgorithmRun, AlgorithmRunner, Watchdog, load_algorithm
 
 
 def _input_topics(bag: AnyBag, names) -> dict[str, str]:
@@ -100,18 +100,22 @@ def evaluate_blocks(bag_path: str | Path, algorithm: Any,
     in memory that does not grow with the bag: what the twin's lockstep fed it live, tick by
     tick. Errors in the bag's topics or the algorithm's set-up are raised here, before the
     first block."""
-    alg = load_algorithm(algorithm, params)
+    with Watchdog(lambda: 0, f'algorithm {algorithm!r}: its import'):
+        alg = load_algorithm(algorithm, params)
     bag = open_any_bag(bag_path)
     blocks = input_blocks(bag, alg.inputs, block_messages=block_messages)
     nominal, period = bag_nominal(bag)
-    runner = AlgorithmRunner(alg, period, nominal)
+    with Watchdog(lambda: 0, f'algorithm {alg.title}: its setup'):
+        runner = AlgorithmRunner(alg, period, nominal)
 
     def run():
         for t_ns, inputs in blocks:
             table = np.empty((len(t_ns), len(alg.inputs)))
             for j, name in enumerate(alg.inputs):
                 table[:, j] = inputs[name]
-            out, level, changes = runner.block(t_ns, table)
+            # (per block: reading the bag between blocks is not the algorithm's time)
+            with Watchdog(lambda: runner.beats, f'algorithm {alg.title}'):
+                out, level, changes = runner.block(t_ns, table)
             yield Block(t_ns, out, level, [m for _, m in changes])
     return alg, run()
 

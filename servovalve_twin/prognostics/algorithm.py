@@ -40,7 +40,9 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from typing import Any, Mapping
+import threading
+import time
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -138,6 +140,70 @@ def _coerce(title: str, name: str, value: Any, default: Any) -> Any:
                              f'{kind.__name__}, got {value!r}') from None
 
 
+#: a user's algorithm that makes no progress for this long [wall s] -- one step, one block of
+#: steps, its import or its setup -- ends the run with one line (one that blocked in step()
+#: held evaluate for ever)
+STEP_LIMIT_S = 30.0
+
+
+class _Stalled(BaseException):
+    """Raised in the main thread by :class:`Watchdog`'s signal (not an Exception: the user's
+    code may catch those)."""
+
+
+class Watchdog:
+    """``with Watchdog(beats, what):`` -- a thread that signals the main thread (SIGUSR1,
+    whose handler is set for the block) when ``beats()`` (a counter the watched code
+    advances) has not moved for :data:`STEP_LIMIT_S`, which ends the block with one
+    :class:`AlgorithmError` line. A signal interrupts a blocking call (a sleep, a read) as
+    well as a loop; a C extension that holds the interpreter and never checks is not
+    stopped. Only in the main thread (elsewhere it watches nothing)."""
+
+    def __init__(self, beats: Callable[[], int], what: str, limit: float | None = None):
+        self.beats, self.what = beats, what
+        self.limit = STEP_LIMIT_S if limit is None else limit
+        self._stop = threading.Event()
+        self._thread = None
+        self._old = None
+
+    def __enter__(self):
+        import signal
+        if threading.current_thread() is threading.main_thread() and hasattr(signal,
+                                                                              'pthread_kill'):
+            self._old = signal.signal(signal.SIGUSR1, self._raise)
+            self._main = threading.get_ident()
+            self._thread = threading.Thread(target=self._watch, name='algorithm-watchdog',
+                                            daemon=True)
+            self._thread.start()
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise _Stalled()
+
+    def _watch(self) -> None:
+        import signal
+        last, since = self.beats(), time.monotonic()
+        while not self._stop.wait(min(0.25, self.limit / 4)):
+            now = self.beats()
+            if now != last:
+                last, since = now, time.monotonic()
+            elif time.monotonic() - since > self.limit:
+                signal.pthread_kill(self._main, signal.SIGUSR1)
+                return
+
+    def __exit__(self, kind, exc, tb):
+        import signal
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            signal.signal(signal.SIGUSR1, self._old)
+        if kind is _Stalled:
+            raise AlgorithmError(f'{self.what} made no progress for {self.limit:g} s (a step '
+                                 'that blocks or never ends?): the run is stopped') from None
+        return False
+
+
 def load_algorithm(spec: Any, params: Mapping[str, Any] | None = None) -> Algorithm:
     """An instance from ``'package.module:ClassName'``, a class or an instance (``params``
     apply to the first two)."""
@@ -196,6 +262,8 @@ class AlgorithmRunner:
         check_declaration(alg)
         self.alg = alg
         self.period = period
+        #: steps taken (a :class:`Watchdog` reads it)
+        self.beats = 0
         self._last = OK                      # the level of the last tick :meth:`block` ran
         try:
             alg.setup(period, nominal)
@@ -208,6 +276,7 @@ class AlgorithmRunner:
     def step(self, t_ns: int, u: Mapping[str, float]) -> tuple[dict[str, float], Health | None]:
         t = t_ns * 1e-9
         alg = self.alg
+        self.beats += 1
         try:
             out = alg.step(t, u)
             health = alg.health()
@@ -239,6 +308,7 @@ class AlgorithmRunner:
         """The algorithm's :meth:`Algorithm.steps` over ``u``, checked as :meth:`step` checks
         one tick; None if the algorithm steps one tick at a time."""
         alg = self.alg
+        self.beats += 1
         t = np.asarray(t_ns, dtype=np.int64) * 1e-9
         span = f'between t = {t[0]:.3f} and {t[-1]:.3f} s' if len(t) else 'on no ticks'
         try:

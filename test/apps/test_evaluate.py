@@ -152,3 +152,36 @@ def test_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):
         tracemalloc.stop()
     assert json.loads((tmp_path / '16.json').read_text())['ticks'] == 16 * 1001
     assert peaks[1] - peaks[0] < 0.5 * (1 << 20), peaks
+
+
+BLOCKING = '''
+import time
+from servovalve_twin.prognostics.algorithm import Algorithm
+
+
+class Stuck(Algorithm):
+    inputs = ('xj',)
+    outputs = ('x',)
+
+    def step(self, t, u):
+        if t >= 0.005:
+            time.sleep(1e6)             # a step that never returns
+        return {'x': u['xj']}
+'''
+
+
+def test_an_algorithm_that_blocks_is_stopped_by_the_watchdog(tmp_path, monkeypatch, capsys):
+    """A step that blocks (a sleep of 10^6 s at t = 5 ms) held evaluate for ever; a module that
+    blocks at import too. With the watchdog's limit at 0.5 s each ends in one line, exit 2."""
+    from servovalve_twin.cli import main
+    from servovalve_twin.prognostics import algorithm
+    monkeypatch.setattr(algorithm, 'STEP_LIMIT_S', 0.5)
+    (tmp_path / 'stuck_alg.py').write_text(BLOCKING)
+    (tmp_path / 'stuck_import.py').write_text('import time\ntime.sleep(1e6)\n')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(['evaluate', '@paper_HD', '--algorithm', 'stuck_alg:Stuck']) == 2
+    err = capsys.readouterr().err
+    assert 'algorithm Stuck made no progress for 0.5 s' in err and err.count('\n') == 1, err
+    assert main(['evaluate', '@paper_HD', '--algorithm', 'stuck_import:X']) == 2
+    err = capsys.readouterr().err
+    assert "'stuck_import:X': its import made no progress for 0.5 s" in err, err
