@@ -14,7 +14,6 @@ results. Runs in a process pool.
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -27,9 +26,9 @@ from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_
                                                      ONSET_UNITS, ONSET_WINDOW, PAST_ONSET_UNITS,
                                                      PAST_UNITS, VARY,
                                                      calibration_jobs, fit_calibration,
-                                                     onset_jobs, to_g, unit_signals,
+                                                     onset_jobs, unit_record, unit_signals,
                                                      widen_needed)
-from servovalve_twin.prognostics.diagnosis import HEALTHY, diagnose
+from servovalve_twin.prognostics.diagnosis import diagnose
 
 FREE_SETS = (('CJ', 'M'), ())
 #: the nuisance of the calibration units, as a multiple of the documented spread: the domain a
@@ -38,21 +37,8 @@ SPREAD = 1.5
 
 
 def record(d, fault, truth):
-    """What the calibration needs of one diagnosis: the verdict, and the right hypothesis'
-    fit -- its severity and standard error whatever the verdict (the bias is fitted over
-    every unit: a unit near the verdict floor that reads low is called healthy, and a bias
-    fitted over the named ones alone read too little there)."""
-    n = 3 * len(d.recorded['t'])
-    right = next(c for c in d.candidates if c.fault == (fault or HEALTHY))
-    out = dict(fault=fault, truth=truth, named=None if d.best.fault == HEALTHY else
-               d.best.fault, rms=math.sqrt(right.rss / n))
-    if fault is not None:
-        # a verdict's interval is its likelihood-ratio one; another candidate's its Jacobian's
-        fitted = d.best if d.best.fault == fault else right
-        lo, hi = fitted.interval
-        out.update(estimate=fitted.severity,
-                   se=(to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96))
-    return out
+    """What the calibration needs of one diagnosis (calibration.unit_record)."""
+    return unit_record(d, fault, truth)
 
 
 def _stale(r) -> bool:

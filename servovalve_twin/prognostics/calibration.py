@@ -189,6 +189,26 @@ def _scenario(text: str):
     return scenario_from_dict(json.loads(text))
 
 
+def unit_record(d, fault: str | None, truth: float | None) -> dict[str, Any]:
+    """What a calibration needs of one unit's diagnosis ``d`` (:func:`fit_calibration`): the
+    verdict, and the right hypothesis' fit -- its severity and standard error in ``g`` whatever
+    the verdict (the bias is fitted over every unit: a unit near the verdict floor that reads
+    low is called healthy, and a bias fitted over the named ones alone read too little there)
+    -- and its RMS."""
+    from .verdict import HEALTHY
+    n = 3 * len(d.recorded['t'])
+    right = next(c for c in d.candidates if c.fault == (fault or HEALTHY))
+    out = dict(fault=fault, truth=truth, named=None if d.best.fault == HEALTHY else
+               d.best.fault, rms=math.sqrt(right.rss / n))
+    if fault is not None:
+        # a verdict's interval is its likelihood-ratio one; another candidate's its Jacobian's
+        fitted = d.best if d.best.fault == fault else right
+        lo, hi = fitted.interval
+        out.update(estimate=fitted.severity,
+                   se=(to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96))
+    return out
+
+
 def calibration_jobs(units: int, seed: int) -> list[tuple]:
     """(fault or None, level, scenario name, seed) of the calibration set: ``units`` per
     fault, level and scenario, then :data:`EXTRA_UNITS` more at severities drawn between the

@@ -69,7 +69,7 @@ import numpy as np
 
 from ..errors import TwinError
 from ..physics.faults import FAULTS
-from ..physics.params import PARAM_FIELDS, PARAM_NAMES, EhaParams
+from ..physics.params import PARAM_NAMES, EhaParams
 from .fitting import (SIGNALS, Problem, bootstrap_intervals, effective_n, fit, jacobian_interval,
                       ratio_interval, start_grid)
 from .rules import (DETECTABLE, DIAGNOSABLE, ONSET_ENTRY, PAIR_EVIDENCE, above_floor,

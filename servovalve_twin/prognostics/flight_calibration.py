@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -50,8 +49,8 @@ from ..errors import TwinError
 from ..outputs import output_file
 from ..physics.faults import FAULTS
 from ..physics.params import EhaParams
-from .calibration import LEVELS, fit_calibration, to_g, unit_signals
-from .rules import above_floor, fraction
+from .calibration import LEVELS, fit_calibration, to_g, unit_record, unit_signals
+from .rules import fraction
 
 #: the method's version: a cache entry of another is not read (its key differs)
 VERSION = 1
@@ -127,24 +126,14 @@ def run_unit(job: tuple, scenario: Mapping[str, Any], design: EhaParams, model: 
     sig, truth, _ = unit_signals(fault, q, dict(scenario), seed, spread=SPREAD, design=design)
     d = diagnose(sig, design, control_period=control_period, model=model, faults=faults,
                  free=free, model_form=False)
-    n = 3 * len(d.recorded['t'])
-    right = next(c for c in d.candidates if c.fault == (fault or HEALTHY))
     healthy = next(c for c in d.candidates if c.fault == HEALTHY)
     top = min(d.candidates, key=lambda c: c.score)
-    rec = dict(id=_job_id(job), fault=fault, level=q, truth=truth, scenario=OWN,
-               named=None if d.best.fault == HEALTHY else d.best.fault,
-               rms=math.sqrt(right.rss / n),
-               # the fault this unit would be named with, whatever the floor: the best-scoring
-               # hypothesis where it is a fault scoring better than healthy
-               best=None if top.fault == HEALTHY or len(top.faults) != 1
-               or top.score >= healthy.score else [top.fault, fraction(top.fault,
-                                                                       top.severities[0])])
-    if fault is not None:
-        fitted = d.best if d.best.fault == fault else right
-        lo, hi = fitted.interval
-        rec.update(estimate=fitted.severity,
-                   se=(to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96))
-    return rec
+    # the fault this unit would be named with, whatever the floor: the best-scoring
+    # hypothesis where it is a fault scoring better than healthy
+    best = None if top.fault == HEALTHY or len(top.faults) != 1 or \
+        top.score >= healthy.score else [top.fault, fraction(top.fault, top.severities[0])]
+    return dict(unit_record(d, fault, truth), id=_job_id(job), level=q, scenario=OWN,
+                best=best)
 
 
 def verdict_fraction(records: Iterable[Mapping[str, Any]]) -> float:

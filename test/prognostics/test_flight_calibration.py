@@ -172,7 +172,6 @@ def test_a_flight_calibration_is_found_by_diagnose(tmp_path, monkeypatch):
     """A 0.3 s flight of its own calibrated on demand (1 unit per fault and level, 6 healthy):
     diagnose of a healthy HD unit's bag of that flight applies it -- the JSON says so, with
     the floor it stands on -- and without it says that none exists."""
-    import numpy as np  # noqa: F401
     from servovalve_twin.apps.diagnose import flight_calibration_of
     monkeypatch.setenv(fc.CACHE_ENV, str(tmp_path))
     scn = load_scenario(FLIGHT)
