@@ -10,6 +10,7 @@ from typing import Sequence
 
 from ..errors import TwinError
 from ..outputs import write_new
+from ..physics.faults import FAULTS
 from .common import (Command, add_algorithm_options, add_param_options, algorithm_params,
                      nonnegative_float, overrides, positive_float)
 
@@ -113,10 +114,13 @@ class Diagnose(Command):
             plot_diagnosis(d, args.plot)
         print(f'{args.bag}: {_verdict_line(d)} -- {len(d.candidates)} hypotheses, '
               f'{d.evaluations} model runs with {d.model} in {wall:.2f} s -> {args.json}')
+        print('  candidates, best score (information criterion: lower is better) first; the '
+              'verdict is the best unless it is a fault below the floor:')
         for c in d.candidates:
-            sev = ' ' + '/'.join(f'{s:.4g}' for s in c.severities) if c.severities else ''
+            sev = ' ' + ' / '.join(FAULTS[f].show(s) for f, s in zip(c.faults, c.severities)
+                                   ) if c.severities else ''
             extra = ''.join(f' {k}x{v:.3f}' for k, v in c.free.items())
-            print(f'  {c.fault:24s}{sev:>10s}  score {c.score:10.1f}{extra}')
+            print(f'  {c.fault:24s}{sev:>18s}  score {c.score:10.1f}{extra}')
         return 0
 
 
@@ -142,8 +146,9 @@ def _answer(d) -> str:
         return f'{d.verdict} (best candidate: {b.fault})'
     conf = f'{d.confidence:.0%}'.replace('%', ' %')
     what = 'healthy' if b.severity is None else ', '.join(
-        f'{f}, severity {s:.4g} ({conf} [{i[0]:.4g}, {i[1]:.4g}])'
-        for f, s, i in zip(b.faults, b.severities, b.intervals))
+        f'{f}, severity {FAULTS[f].show(s)} ({conf} [{FAULTS[f].show(i[0], False)}, '
+        f'{FAULTS[f].show(i[1], False)}])' for f, s, i in zip(b.faults, b.severities,
+                                                               b.intervals))
     if d.onset:
         lo, hi = d.onset['interval']
         oc = f'{d.onset.get("confidence", 0.95):.0%}'.replace('%', ' %')

@@ -57,6 +57,14 @@ class FaultSpec:
             return self.healthy * math.exp(g)
         return self.healthy + g * abs(self.demo - self.healthy)
 
+    def show(self, s: float, unit: bool = True) -> str:
+        """A severity as a reader wants it: 4 significant digits with its unit (a null bias in
+        mA): '6.012 x CLk', '0.2817 of PSR', '-1.214 mA'; ``unit`` False: the number alone, in
+        that unit."""
+        if self.unit == 'A':
+            return f'{s * 1e3:.4g}' + (' mA' if unit else '')
+        return f'{s:.4g}' + (f' {self.unit.replace("fraction ", "")}' if unit else '')
+
     def severity_of(self, nominal: EhaParams, value: float) -> float:
         """The inverse of :meth:`value`: the severity at which the parameter is ``value``,
         read against ``nominal`` (no bounds checked: a unit's own parameter read against its

@@ -120,7 +120,7 @@ def test_the_verdict_line_states_the_onset_and_its_confidence():
                   evaluations=1, recorded={}, confidence=0.9,
                   onset=dict(t=0.3, interval=[0.298, 0.302], identifiable=True,
                              confidence=0.9))
-    assert _verdict_line(d) == ('leakage_growth, severity 1.8 (90 % [1.7, 1.9]), from t = '
+    assert _verdict_line(d) == ('leakage_growth, severity 1.8 x CLk (90 % [1.7, 1.9]), from t = '
                                 '0.300 s (90 % [0.298, 0.302])')
     d.onset = dict(t=0.0, interval=[0.0, 0.36], identifiable=False, confidence=0.95)
     assert _verdict_line(d).endswith('begun between 0.000 and 0.360 s (the run cannot tell '
@@ -138,10 +138,20 @@ def test_the_diagnosis_line_names_rivals_and_a_poor_fit():
                         rivals=['clearance_growth', 'leakage_growth'], p_value=0.004,
                         fit_rms=30.0)
     line = _verdict_line(d)
-    assert line.startswith('supply_loss, severity 0.7492 (95 % [0.7333, 0.7652])')
+    assert line.startswith('supply_loss, severity 0.7492 of PSR (95 % [0.7333, 0.7652])')
     assert '; also consistent with clearance_growth, leakage_growth' in line
     assert '; poor fit: RMS 30 of the residual scales, worse than 99.6% of right fits' in line
     d.rivals, d.p_value = [], 0.5
-    assert _verdict_line(d) == 'supply_loss, severity 0.7492 (95 % [0.7333, 0.7652])'
+    assert _verdict_line(d) == 'supply_loss, severity 0.7492 of PSR (95 % [0.7333, 0.7652])'
     d.p_value = 0.049                   # POOR_FIT_P = 0.05
     assert 'poor fit' in _verdict_line(d)
+
+
+def test_severities_are_printed_with_their_units():
+    """A null bias of -1.214e-3 A read '-0.001214' (amperes, unsaid): mA now; a multiplier
+    and a fraction name what they multiply or take from."""
+    from servovalve_twin.physics.faults import FAULTS
+    assert FAULTS['null_bias'].show(-1.2137e-3) == '-1.214 mA'
+    assert FAULTS['null_bias'].show(-1.2137e-3, False) == '-1.214'
+    assert FAULTS['leakage_growth'].show(6.01234) == '6.012 x CLk'
+    assert FAULTS['supply_loss'].show(0.28171) == '0.2817 of PSR'
