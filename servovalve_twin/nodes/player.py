@@ -418,13 +418,18 @@ def main(args: Sequence[str] | None = None) -> int:
     [-p topics:="['/xj']"] [-p loop:=true] ...``."""
     import signal
     import rclpy
-    from .rosargs import init_context, ros_parameters, stray_arguments
+    from .rosargs import asks_for_help, init_context, ros_parameters, stray_arguments
     argv = list(sys.argv if args is None else args)
+    usage = ('usage: player --ros-args -p bag:=DIR [-p rate:=F] [-p clock:=HZ] '
+             '[-p topics:=[...]] [-p exclude_topics:=[...]] [-p loop:=true] [-p delay:=S] '
+             '[-p start_offset:=S] [-p playback_duration:=S] [-p start_paused:=true] '
+             '[-p remap:=[FROM:=TO]] [-p wait_for_subscribers:=N]\n'
+             'example: ros2 run servovalve_twin player --ros-args -p bag:=bags/hd -p rate:=4.0')
+    if asks_for_help(argv):
+        print(usage)
+        return 0
     if stray_arguments(argv):
-        print('usage: player --ros-args -p bag:=DIR [-p rate:=F] [-p clock:=HZ] '
-              '[-p topics:=[...]] [-p exclude_topics:=[...]] [-p loop:=true] [-p delay:=S] '
-              '[-p start_offset:=S] [-p playback_duration:=S] [-p start_paused:=true] '
-              '[-p remap:=[FROM:=TO]]', file=sys.stderr)
+        print(usage, file=sys.stderr)
         return 2
     stop = []
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -24,6 +24,12 @@ def stray_arguments(argv: Sequence[str]) -> list[str]:
     return remove_ros_args(list(argv))[1:]
 
 
+def asks_for_help(argv: Sequence[str]) -> bool:
+    """``-h`` or ``--help`` alone outside ``--ros-args``: the usage, exit 0 (it was exit 2, as
+    for an argument the executable does not take)."""
+    return stray_arguments(argv) in (['-h'], ['--help'])
+
+
 def init_context(argv: Sequence[str] | None) -> tuple[Context, list[str]]:
     """A private rclpy context initialised with ``argv`` (default ``sys.argv``), without
     rclpy's signal handlers (the caller installs its own)."""

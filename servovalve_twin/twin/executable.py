@@ -10,14 +10,16 @@ from typing import Sequence
 import rclpy
 
 from ..errors import TwinError
-from ..nodes.rosargs import init_context, ros_parameters, stray_arguments
+from ..nodes.rosargs import asks_for_help, init_context, ros_parameters, stray_arguments
 from ..physics.params import PARAM_NAMES
 from .config import TwinConfig
 from .lockstep import run_twin
 
 USAGE = ('usage: twin --ros-args [-p NAME:=VALUE ...] [-r __ns:=/NS] [--params-file FILE]\n'
          '  NAME: ' + ', '.join(TwinConfig.names()) + ', or a physical parameter '
-         '(servovalve-twin params lists them)')
+         '(servovalve-twin params lists them)\n'
+         'example: ros2 run servovalve_twin twin --ros-args -p valve_model:=HD '
+         '-p scenario:=paper -p bag:=bags/hd')
 
 
 def main(args: Sequence[str] | None = None) -> int:
@@ -28,6 +30,9 @@ def main(args: Sequence[str] | None = None) -> int:
     parameters. Recording is on by default, into ``bags/<scenario>_<valve_model>_<UTC
     time>``."""
     argv = list(sys.argv if args is None else args)
+    if asks_for_help(argv):
+        print(USAGE)
+        return 0
     if stray_arguments(argv):
         print(USAGE, file=sys.stderr)
         return 2

@@ -316,3 +316,16 @@ def test_algorithm_and_player_executables(tmp_path):
     r = subprocess.run([console_script('player'), '--ros-args', '-p', 'bag:=/nonexistent'],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and 'no bag at' in r.stderr and r.stderr.count('\n') == 1
+
+
+@pytest.mark.parametrize('name', ['twin', 'player'])
+def test_help_is_the_usage_and_exit_0(name):
+    """`twin --help` and `player --help` printed the usage as an error, exit 2."""
+    import subprocess
+    r = subprocess.run([console_script(name), '--help'], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and r.stdout.startswith(f'usage: {name} --ros-args')
+    assert 'example: ros2 run servovalve_twin ' + name in r.stdout
+    r = subprocess.run([console_script(name), 'stray'], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2 and r.stderr.startswith(f'usage: {name}')
