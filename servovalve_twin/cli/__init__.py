@@ -27,13 +27,44 @@ COMMANDS: list[Command] = [
 ]
 
 
+#: one example per command, shown at the end of its ``--help`` (a test parses each)
+EXAMPLES = {
+    'simulate': 'servovalve-twin simulate --valve-model SQ --scenario paper --out run.csv',
+    'characteristic': 'servovalve-twin characteristic --valve-model HD --qj 0,1e-4 '
+                      '--out ch.csv --plot ch.png',
+    'calibrate': 'servovalve-twin calibrate --param c=1e-5',
+    'params': 'servovalve-twin params',
+    'report': 'servovalve-twin report --out-dir out/report',
+    'run': 'servovalve-twin run --valve-model HD --scenario paper --bag bags/hd '
+           '--monitor SQ',
+    'compare': 'servovalve-twin compare @paper_HD run.csv --plot cmp.png',
+    'replay': 'servovalve-twin replay @paper_HD --valve-model SQ --out bags/sq_replay',
+    'sweep': 'servovalve-twin sweep --fault leakage_growth:1~20 --draws 40 --nominal 10 '
+             '--out sweeps/leak',
+    'play': 'servovalve-twin play @paper_HD --rate 4 --wait-for-subscribers 1',
+    'evaluate': 'servovalve-twin evaluate @paper_HD --algorithm '
+                'servovalve_twin.prognostics.monitor:MonitorAlgorithm --json e.json',
+    'diagnose': 'servovalve-twin diagnose bags/hd --free M,CJ --json d.json',
+    'calibrate-diagnosis': 'servovalve-twin calibrate-diagnosis bags/hd --free M,CJ',
+    'monitor-thresholds': 'servovalve-twin monitor-thresholds --scenario paper --units 8 '
+                          '--out thresholds.yaml',
+    'bit': 'servovalve-twin bit --out bit.yaml',
+    'prognose': 'servovalve-twin prognose bags/f1 bags/f2 bags/f3 --cycles 0,50,100 '
+                '--threshold leakage_growth --json p.json',
+    'fmu': 'servovalve-twin fmu --valve-model SQ eha.fmu',
+    'faults': 'servovalve-twin faults',
+    'reindex': 'servovalve-twin reindex bags/killed_run',
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
     parser = Parser(prog='servovalve-twin', description=__doc__.splitlines()[0])
     parser.add_argument('--version', action='version', version=f'servovalve-twin {__version__}')
     sub = parser.add_subparsers(dest='command', required=True, parser_class=Parser)
     for command in COMMANDS:              # every --help opens with the command's purpose
-        p = sub.add_parser(command.name, help=command.help, description=command.help)
+        p = sub.add_parser(command.name, help=command.help, description=command.help,
+                           epilog=f'example: {EXAMPLES[command.name]}')
         command.add_arguments(p)
         p.set_defaults(func=command.main)
     return parser
@@ -69,4 +100,4 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
-__all__ = ['COMMANDS', 'Command', 'build_parser', 'main']
+__all__ = ['COMMANDS', 'EXAMPLES', 'Command', 'build_parser', 'main']

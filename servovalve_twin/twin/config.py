@@ -104,8 +104,10 @@ class TwinConfig:
 
     valve_model: str = option('C2', 'valve model: a name of the registry '
                               '(servovalve-twin --help lists them)', _text, metavar='NAME')
-    scenario: str = option('paper', 'built-in scenario name or YAML file (default paper)',
-                           _text, metavar='paper|FILE.yaml')
+    scenario: str = option('paper', 'built-in scenario name or YAML file (default paper); its '
+                           "'faults:' section injects faults ([{at: 0.3, fault: "
+                           "leakage_growth, severity: 10}]; servovalve-twin faults lists "
+                           'them)', _text, metavar='paper|FILE.yaml')
     control_period: float = option(1e-3, 'lockstep period [s] (default 0.001; must divide '
                                    '1 ms)', _positive, metavar='S')
     clock_period: float = option(1e-2, '/clock publication period in simulated time [s] '

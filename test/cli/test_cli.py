@@ -155,3 +155,20 @@ def test_severities_are_printed_with_their_units():
     assert FAULTS['null_bias'].show(-1.2137e-3, False) == '-1.214'
     assert FAULTS['leakage_growth'].show(6.01234) == '6.012 x CLk'
     assert FAULTS['supply_loss'].show(0.28171) == '0.2817 of PSR'
+
+
+def test_every_command_shows_an_example_that_parses(capsys):
+    """Each --help ends with an example (none had one); each example is a command line the
+    parser takes as written."""
+    import shlex
+    from servovalve_twin.cli import COMMANDS, EXAMPLES, build_parser
+    assert set(EXAMPLES) == {c.name for c in COMMANDS}
+    parser = build_parser()
+    for name, line in EXAMPLES.items():
+        argv = shlex.split(line)
+        assert argv[0] == 'servovalve-twin' and argv[1] == name
+        parser.parse_args(argv[1:])
+        with pytest.raises(SystemExit) as done:
+            parser.parse_args([name, '--help'])
+        assert done.value.code == 0
+        assert f'example: {line}' in ' '.join(capsys.readouterr().out.split())
