@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics.algorithm import run_algorithm
 from servovalve_twin.prognostics.monitor import MonitorAlgorithm
@@ -186,3 +187,25 @@ def test_a_gumbel_law_of_too_few_peaks_is_refused():
     mu = 1.5 - 0.5772156649 * beta
     assert gumbel_quantile([1.0, 2.0], 0.01) == pytest.approx(
         mu - beta * math.log(-math.log(0.99)))
+
+
+@pytest.mark.parametrize('first, later', [('xj', 'p12'), ('xj', 'dxj'), ('dxj', 'p12')])
+def test_a_row_s_level_is_its_worst_signal_s(first, later):
+    """An HD unit with a 10 x leak read by SQ; thresholds set so that ``first`` is at ERROR as
+    soon as its indicator moves and ``later`` (after it in the row) only at WARN: every row
+    where both have moved is ERROR, the worse of the two, whichever signal comes later (a WARN
+    on a later signal that overwrote an earlier ERROR passed every test)."""
+    from servovalve_twin.prognostics.monitor import RESIDUALS, HealthConfig, monitor_run
+    sc = dict(load_scenario('paper').to_dict(),
+              faults=[{'at': 0.0, 'fault': 'leakage_growth', 'severity': 10.0}])
+    run = simulate('HD', sc, ecu_period=1e-3)
+    kw = {}
+    for s in RESIDUALS:
+        warn, err = {first: (1e-300, 2e-300), later: (1e-300, 1e300)}.get(s, (1e300, 1e300))
+        kw.update({f'warn_{s}': warn, f'error_{s}': err})
+    res = monitor_run(run, 'SQ', HealthConfig(window=0.05, **kw))
+    both = (res.indicators[first] > 1e-300) & (res.indicators[later] > 1e-300)
+    assert both.sum() > 100
+    assert np.all(res.level[both] == 2)
+    only_later = (res.indicators[first] <= 1e-300) & (res.indicators[later] > 1e-300)
+    assert np.all(res.level[only_later] == 1)
