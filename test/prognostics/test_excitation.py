@@ -216,3 +216,26 @@ def test_bit_and_diagnose_limits_state_the_same_paper_column(tmp_path, capsys):
     a, b = paper_cells(limits), paper_cells(bit)
     assert a and a == b
     assert '(diagnosed with CJ,M free)' in limits and '(diagnosed with CJ,M free)' in bit
+
+
+def test_the_bit_scenario_has_its_documented_structure():
+    """bit_scenario's four parts as its docstring and description state them, for a chosen x
+    (hand-written expectations): four steps of alternating sign +-step*stroke, each held for a
+    quarter of the steps part under the step load; a slow ramp from -a at ramp_rate under the
+    ramp load; holds under the hold load and then its opposite. (Losing the alternation or the
+    hold loads passed every test.)"""
+    from servovalve_twin.prognostics.excitation import RigLimits, bit_scenario
+    rig = RigLimits(stroke=0.05, load=8000.0, rate=0.0)
+    x = dict(step=0.8, step_load=-0.5, ramp_rate=0.01, ramp_load=0.25, hold_load=0.6,
+             steps_part=0.4, ramp_part=0.3)
+    scn = bit_scenario(x, 2.0, rig)
+    pts = scn['com']['ramp']
+    a = 0.8 * 0.05
+    levels = [v for (_, v), (_, w) in zip(pts, pts[1:]) if v == w and v != 0.0][:4]
+    assert levels == [a, -a, a, -a]
+    fr = dict((round(t, 6), v) for t, v in scn['fr'])
+    assert fr[0.005] == -0.5 * 8000.0 and fr[0.8] == 0.25 * 8000.0
+    holds = [v for t, v in scn['fr'] if t > 0.8 + 0.6]
+    assert holds == [0.6 * 8000.0, -0.6 * 8000.0]
+    assert scn['windows'] == {'steps': [0.0, 0.8], 'ramp': [0.8, 1.4], 'holds': [1.4, 2.0]}
+    load_scenario(scn)                            # and it is a valid scenario
