@@ -2,7 +2,9 @@
 and the statements of the paper are checked on the same runs the report tabulates."""
 
 import functools
+import os
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -10,6 +12,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+# the suite's own cache of flight calibrations (calibrate-diagnosis): a user's, under
+# ~/.cache, would make diagnose apply a calibration of its own to the tests' bags (the
+# processes the tests start inherit it)
+os.environ['SERVOVALVE_TWIN_CACHE'] = tempfile.mkdtemp(prefix='servovalve_twin_test_cache_')
 
 
 @functools.lru_cache(maxsize=None)
