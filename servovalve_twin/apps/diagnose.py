@@ -14,7 +14,7 @@ from ..errors import TwinError
 from ..outputs import output_path
 from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
                                      diagnose, model_form_estimate)
-from ..prognostics.flight_calibration import OWN, cached, flight_key
+from ..prognostics.flight_calibration import OWN, cached, flight_key, with_pooled
 from ..prognostics.prognosis import MIN_CYCLES, Prognosis, prognose
 from .plots import plot_overlay
 from .replay import bag_params
@@ -119,8 +119,9 @@ def flight_calibration_of(run, design, model: str, free: Sequence[str], period: 
     design, model and free nuisance (:mod:`..prognostics.flight_calibration`), or None."""
     if not run.provenance or run.provenance.scenario is None:
         return None
-    return cached(flight_key(run.provenance.scenario_object().to_dict(), design, model, free,
-                             period))
+    own = cached(flight_key(run.provenance.scenario_object().to_dict(), design, model, free,
+                            period))
+    return None if own is None else with_pooled(own, model, free)
 
 
 def _calibrated_constants(design, given: Mapping[str, Any]):
