@@ -308,6 +308,17 @@ print(json.dumps(counts), flush=True)
 '''
 
 
+def _slow_subscriber(topics, expected):
+    """SLOW_SUBSCRIBER in a process of its own, once it says it is subscribed."""
+    sub = subprocess.Popen([sys.executable, '-c', SLOW_SUBSCRIBER, ','.join(topics),
+                            str(expected)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True)
+    if sub.stdout.readline().strip() != 'ready':
+        sub.kill()
+        raise AssertionError(sub.stderr.read())
+    return sub
+
+
 def test_the_player_never_outruns_a_reliable_subscriber(ros_context):
     """At -r 1000 a reliable subscriber in another process, with a callback of 50 us and a
     history deep enough for the whole bag, receives every message: the player waits for its
@@ -319,11 +330,8 @@ def test_the_player_never_outruns_a_reliable_subscriber(ros_context):
     info = open_any_bag(bag).topics
     topics = sorted(t for t, i in info.items() if i.type == 'std_msgs/msg/Float64')
     expected = info['/xj'].count
-    sub = subprocess.Popen([sys.executable, '-c', SLOW_SUBSCRIBER, ','.join(topics),
-                            str(expected)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                           text=True)
+    sub = _slow_subscriber(topics, expected)
     try:
-        assert sub.stdout.readline().strip() == 'ready', sub.stderr.read()
 
         def matched(player):
             # discovery, not a sleep: the subscriber is matched on every played topic
@@ -353,11 +361,8 @@ def test_the_player_waits_for_its_subscribers_before_the_first_message(ros_conte
     info = open_any_bag(bag).topics
     topics = ['/xj', '/p12']
     expected = info['/xj'].count
-    sub = subprocess.Popen([sys.executable, '-c', SLOW_SUBSCRIBER, ','.join(topics),
-                            str(expected)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                           text=True)
+    sub = _slow_subscriber(topics, expected)
     try:
-        assert sub.stdout.readline().strip() == 'ready', sub.stderr.read()
         result = play(bag, PlayOptions(rate=1000.0, topics=tuple(topics),
                                        wait_for_subscribers=1), context=ros_context)
         out, err = sub.communicate(timeout=120)
