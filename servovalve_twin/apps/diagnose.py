@@ -12,6 +12,8 @@ from ..bag.anybag import open_any_bag
 from ..bag.reader import read_bag_until
 from ..errors import TwinError
 from ..outputs import output_path
+from ..prognostics.calibration import alpha_of, calibration_for
+from ..prognostics.conformal import ALPHA
 from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
                                      diagnose, model_form_estimate)
 from ..prognostics.flight_calibration import OWN, cached, flight_key, with_pooled
@@ -65,7 +67,8 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
                  window: tuple[float, float] | None = None, free: Sequence[str] = (),
                  bootstrap: int = 0, pairs: bool = False,
                  nominal: Mapping[str, Any] | None = None,
-                 control_period: float | None = None, onset: bool = False) -> Diagnosis:
+                 control_period: float | None = None, onset: bool = False,
+                 alpha: float = ALPHA) -> Diagnosis:
     """Diagnose a recorded run against the parameters and control period it was recorded
     with (its provenance record), ``nominal`` overriding them. The model-form calibration
     applies unless the bag says it was recorded with the fitted model itself (then exact). A
@@ -85,7 +88,7 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     design, stale = _calibrated_constants(design, nominal or {})
     period = control_period or run.control_period or 1e-3
     scenario = calibration_scenario(run.provenance)
-    own = flight_calibration_of(run, design, model, free, period)
+    own = flight_calibration_of(run, design, model, free, period, alpha)
     d = diagnose(run.signals, design, control_period=period, model=model, faults=faults,
                  window=window, free=free, bootstrap=bootstrap, pairs=pairs,
                  model_form=run.valve_model != model, onset=onset,
@@ -96,6 +99,13 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
             'flights, the default design) is applied, and its intervals and verdict floor may '
             f'not hold here; calibrate it (minutes): servovalve-twin calibrate-diagnosis {bag}'
             + (f' --free {",".join(free)}' if free else ''))
+    if own is None and run.valve_model != model and alpha != alpha_of(
+            calibration_for(model, free)):
+        d.warnings.append(
+            f'{bag}: no calibration of this flight and design at alpha {alpha:g}: the '
+            f'intervals are the packaged calibration\'s, {d.confidence:.0%}; for '
+            f'{1 - alpha:.0%} calibrate it: servovalve-twin calibrate-diagnosis {bag} '
+            f'--alpha {alpha:g}' + (f' --free {",".join(free)}' if free else ''))
     if stale:
         d.warnings.append(f'{bag}: {stale}')
     if run.provenance and run.provenance.scenario is not None:
@@ -114,13 +124,14 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     return d
 
 
-def flight_calibration_of(run, design, model: str, free: Sequence[str], period: float):
+def flight_calibration_of(run, design, model: str, free: Sequence[str], period: float,
+                          alpha: float = ALPHA):
     """The cached calibration of the flight a bag recorded (its provenance scenario) for this
     design, model and free nuisance (:mod:`..prognostics.flight_calibration`), or None."""
     if not run.provenance or run.provenance.scenario is None:
         return None
     own = cached(flight_key(run.provenance.scenario_object().to_dict(), design, model, free,
-                            period))
+                            period, alpha))
     return None if own is None else with_pooled(own, model, free)
 
 

@@ -60,6 +60,18 @@ def add_scenario_options(p: argparse.ArgumentParser) -> None:
     add_param_options(p)
 
 
+def miscoverage(text: str) -> float:
+    """A conformal level's ``alpha``: a number in (0, 0.5] (0.1: 90 % intervals)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a number, got {text!r}') from None
+    if not 0 < v <= 0.5:
+        raise argparse.ArgumentTypeError(f'expected alpha in (0, 0.5] (0.1: 90 % intervals), '
+                                         f'got {text!r}')
+    return v
+
+
 def positive_float(text: str) -> float:
     try:
         v = float(text)

@@ -11,8 +11,9 @@ from typing import Sequence
 from ..errors import TwinError
 from ..outputs import write_new
 from ..physics.faults import FAULTS
+from ..prognostics.conformal import ALPHA
 from .common import (Command, add_algorithm_options, add_param_options, algorithm_params,
-                     nonnegative_float, overrides, positive_float)
+                     miscoverage, nonnegative_float, overrides, positive_float)
 
 #: the fewest block-bootstrap refits whose percentiles make an interval
 MIN_BOOTSTRAP = 20
@@ -73,6 +74,9 @@ class Diagnose(Command):
         p.add_argument('--onset', action='store_true',
                        help='also fit when the fault began (a change point over the window; '
                             'about 5 x the cost)')
+        p.add_argument('--alpha', type=miscoverage, default=ALPHA, metavar='A',
+                       help='the intervals\' miscoverage: the flight\'s own calibration at A '
+                            '(calibrate-diagnosis --alpha A) is used (default 0.1: 90 %%)')
         add_param_options(p)
         p.add_argument('--control-period', type=positive_float, metavar='S',
                        help="the ECU's period of the run (default: the bag's, else 1 ms)")
@@ -105,7 +109,8 @@ class Diagnose(Command):
         d = diagnose_bag(args.bag, model=args.model, faults=parse_faults(args.faults),
                          window=parse_window(args.window), free=free, bootstrap=args.bootstrap,
                          pairs=args.pairs, nominal=overrides(args),
-                         control_period=args.control_period, onset=args.onset)
+                         control_period=args.control_period, onset=args.onset,
+                         alpha=args.alpha)
         wall = time.perf_counter() - t
         write_json(args.json, d.to_json())
         for w in d.warnings:
@@ -195,6 +200,9 @@ class CalibrateDiagnosis(Command):
                        help='HD units per fault and level (default 3; twice as many healthy '
                             'per level)')
         p.add_argument('--seed', type=int, default=0, help="the units' seed (default 0)")
+        p.add_argument('--alpha', type=miscoverage, default=ALPHA, metavar='A',
+                       help='the intervals\' miscoverage (default 0.1: 90 %% intervals); '
+                            'diagnose --alpha A uses this calibration')
         p.add_argument('--workers', type=int, default=None, metavar='N',
                        help='processes (default: one per core)')
         p.add_argument('--control-period', type=positive_float, metavar='S',
@@ -217,7 +225,7 @@ class CalibrateDiagnosis(Command):
         try:
             cal, path = calibrate_flight(scenario, design, model=args.model, free=free,
                                          control_period=period, units=units, seed=args.seed,
-                                         workers=args.workers)
+                                         workers=args.workers, alpha=args.alpha)
         except KeyboardInterrupt:
             print('servovalve-twin calibrate-diagnosis: interrupted; the finished units are '
                   'kept: run the same command again to resume', file=sys.stderr)

@@ -23,11 +23,12 @@ for a fraction or a value, ``span`` the distance from healthy to the alarm value
   ~5 x and 10-25 % high at 20 x; on the paper flight a leak at its stated limit, 1.585 x,
   near the verdict floor, 12.6 % low, and 4 % low at 10 x, M and CJ free);
 - ``sigma``: the model-form spread, set so that ``g(estimate) - bias +- z*sqrt(se^2 + sigma^2)``
-  holds ``g(truth)`` in ``ceil(0.9*(n + 1))`` of the ``n`` pinned units where the fault was
-  named (the answers an interval is stated for) at z = 1.645 (``se`` the fit's own standard
-  error) -- the split-conformal rank, which makes the coverage of a new unit from the same
-  distribution at least 90 % however few the units (a plain 90 % of them covered 85-88 % of
-  new units: measured);
+  holds ``g(truth)`` in ``ceil((1 - alpha)(n + 1))`` of the ``n`` pinned units where the fault
+  was named (the answers an interval is stated for; ``alpha`` 0.1, z = 1.645, ``se`` the fit's
+  own standard error) -- the conformal quantile of :func:`.conformal.spread_score`, which makes
+  the coverage of a new unit from the same distribution at least 1 - alpha however few the
+  units, from :func:`.conformal.units_needed` on (a plain 90 % of them covered 85-88 % of new
+  units: measured);
 - ``k``: for the units whose fit does not pin the severity (a flat likelihood), the factor on
   their own ``se`` that holds them at the same rank, ``sqrt((k*se)^2 + sigma^2)``
   (:func:`spread_of`) -- so that a few unidentifiable units do not widen every interval;
@@ -53,6 +54,8 @@ import numpy as np
 
 from ..physics.faults import FAULTS, resolve
 from ..physics.params import DEFAULTS, EhaParams
+from .conformal import (ALPHA, factor_score, p_value, quantile, rate_score, spread_score,
+                        z_of)
 
 #: nuisance spread of a unit around its design (relative, uniform): the documented spread
 VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}
@@ -60,8 +63,6 @@ VARY = {'M': 0.1, 'CJ': 0.2, 'FDJ': 0.2}
 NOISE = {'xj': 10e-6, 'dxj': 1e-3, 'p12': 50e3}
 #: fractions of the way from healthy to the alarm severity
 LEVELS = (0.3, 0.6, 1.0)
-#: the z of a two-sided 90 % normal interval
-Z90 = 1.6449
 #: named units of a fault on one calibration scenario needed for its own calibration entry
 SCENARIO_UNITS = 6
 #: the scenarios of the calibration set: the paper's, steps under load, a sine against an
@@ -325,32 +326,8 @@ def _kernel(points: np.ndarray, g: float | np.ndarray, bandwidth: float = BANDWI
     return np.sum(w * points[:, 1], axis=-1) / np.sum(w, axis=-1)
 
 
-def _conformal_rank(n: int) -> int:
-    """How many of ``n`` units a 90 % split-conformal bound must hold: ``ceil(0.9*(n + 1))``,
-    at most ``n``."""
-    return min(n, math.ceil(0.9 * (n + 1)))
-
-
-def _conformal(dev: np.ndarray, half: Any, lo: float, hi: float) -> float:
-    """The smallest parameter in [lo, hi] for which ``|dev| <= half(parameter)`` holds the
-    split-conformal rank of the units (:func:`_conformal_rank`)."""
-    need = _conformal_rank(len(dev))
-
-    def held(v: float) -> int:
-        return int(np.sum(np.abs(dev) <= half(v)))
-
-    if held(lo) >= need:
-        return lo
-    while held(hi) < need:
-        hi *= 2.0
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if held(mid) >= need else (mid, hi)
-    return hi
-
-
-def _fit_faults(records: Sequence[Mapping[str, Any]], *, shape: str, min_units: int = 5
-                ) -> dict[str, Any]:
+def _fit_faults(records: Sequence[Mapping[str, Any]], *, shape: str, min_units: int = 5,
+                alpha: float = ALPHA) -> dict[str, Any]:
     """Per fault with at least ``min_units`` units where it was named: the bias of
     ``g(estimate) - g(truth)`` over every unit of the fault whose right hypothesis' fit pins
     the severity (:data:`SE_PINNED`; all of them if fewer than three named ones do), whatever
@@ -403,15 +380,14 @@ def _fit_faults(records: Sequence[Mapping[str, Any]], *, shape: str, min_units: 
                 loo[m] = err[i] - _kernel(pts[keep], ge[i])
         else:
             loo = err[scored] - entry['bias']
-        sp = se[scored]
-        sigma = _conformal(loo, lambda v: Z90 * np.sqrt(sp ** 2 + v ** 2), 0.0,
-                           max(1e-6, float(np.max(np.abs(loo))) / Z90 * 1.01))
+        z = z_of(alpha)
+        sigma = quantile(spread_score(loo, se[scored], z), alpha)
         k = 1.0
         loose = np.flatnonzero(~pinned & named)
         if len(loose):
-            su = se[loose]
             dev = err[loose] - np.array([bias_at(entry, g) for g in ge[loose]])
-            k = _conformal(dev, lambda v: Z90 * np.sqrt((v * su) ** 2 + sigma ** 2), 1.0, 2.0)
+            # (a flat fit's own interval is never narrowed: k at least 1)
+            k = max(1.0, quantile(factor_score(dev, se[loose], sigma, z), alpha))
         entry.update(sigma=sigma, k=k, units=int(named.sum()), pinned=len(scored),
                      fitted=len(fit),
                      named=int(named.sum()) / sum(1 for r in records if r['fault'] == fault))
@@ -420,7 +396,8 @@ def _fit_faults(records: Sequence[Mapping[str, Any]], *, shape: str, min_units: 
 
 
 def fit_calibration(records: Sequence[Mapping[str, Any]],
-                    onset_records: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
+                    onset_records: Sequence[Mapping[str, Any]] = (), alpha: float = ALPHA
+                    ) -> dict[str, Any]:
     """The calibration from diagnosed units: each record has fault, truth, named (the
     verdict), estimate, se (in g), rms (of the right hypothesis' fit) and scenario. Per fault,
     pooled over the scenarios, a constant bias and the spread (``faults``); per calibration
@@ -444,14 +421,15 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     past_onset = [r for r in onset_records if r.get('level', 0.0) > 1.0 and r.get('refitted')]
     records = [r for r in records if r.get('level', 0.0) <= 1.0]
     onset_records = [r for r in onset_records if r.get('level', 0.0) <= 1.0]
-    out: dict[str, Any] = {'faults': _fit_faults(records, shape='constant')}
+    out: dict[str, Any] = {'alpha': alpha,
+                           'faults': _fit_faults(records, shape='constant', alpha=alpha)}
     out['by_scenario'] = {}
     for scen in sorted({r['scenario'] for r in records if r.get('scenario')}):
         # a scenario whose units spread their severities between the levels gets a bias that
         # follows the estimate; through three levels alone a kernel would snap to them
         fits = _fit_faults([r for r in records if r.get('scenario') == scen],
                            shape='kernel' if scen in EXTRA_UNITS else 'line',
-                           min_units=SCENARIO_UNITS)
+                           min_units=SCENARIO_UNITS, alpha=alpha)
         if fits:
             out['by_scenario'][scen] = fits
     # the onset answers: pooled over the onset flights (a flight without onset units of its
@@ -462,13 +440,13 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
     for key, rows in [('onset', refitted)] + [
             (f'onset:{scen}', [r for r in refitted if r.get('scenario') == scen])
             for scen in sorted({r.get('scenario') for r in refitted if r.get('scenario')})]:
-        fits = _fit_faults(rows, shape='line', min_units=SCENARIO_UNITS)
+        fits = _fit_faults(rows, shape='line', min_units=SCENARIO_UNITS, alpha=alpha)
         if fits:
             out['by_scenario'][key] = fits
-        need = sorted(r['widen'] for r in rows if r.get('widen') is not None
-                      and r['named'] == r['fault'])
+        need = [r['widen'] for r in rows if r.get('widen') is not None
+                and r['named'] == r['fault']]
         if need:
-            out['onset_widen'][key] = float(need[_conformal_rank(len(need)) - 1])
+            out['onset_widen'][key] = quantile(need, alpha)
     rms = np.array([r['rms'] for r in records if r.get('rms') is not None])
     out['rms_quantiles'] = {str(q): float(np.quantile(rms, q))
                             for q in (0.5, 0.9, 0.99, 0.999, 1.0)}
@@ -478,9 +456,9 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
         # eight per fault, are not pooled with those from the start -- read just past the
         # alarm value but far short of their truth, single ones set a growth of up to 2.0 per
         # unit of g for every answer: measured)
-        out['past_onset'] = _fit_past(past_onset, out)
+        out['past_onset'] = _fit_past(past_onset, out, alpha=alpha)
     if past_records:
-        out['past'] = _fit_past(past_records, out)
+        out['past'] = _fit_past(past_records, out, alpha=alpha)
         # the right fits past the alarm value fit worse (a torque-motor gain loss of 0.78 on
         # the built-in test: RMS 3.3-3.5 where those up to it stay within 3.0): an answer
         # past it is tested against them all (:func:`gof_reference`)
@@ -490,7 +468,7 @@ def fit_calibration(records: Sequence[Mapping[str, Any]],
 
 
 def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any],
-              min_units: int = SCENARIO_UNITS) -> dict[str, Any]:
+              min_units: int = SCENARIO_UNITS, alpha: float = ALPHA) -> dict[str, Any]:
     """The entries ``past`` of a calibration ``cal`` (its entries up to the alarm value
     fitted), from ``records`` of units past the alarm value (diagnosed from the start, or
     refitted at an onset: ``past_onset``): per fault with at least ``min_units`` named, over
@@ -536,8 +514,7 @@ def _fit_past(records: Sequence[Mapping[str, Any]], cal: Mapping[str, Any],
         sc = np.flatnonzero(pinned & named)
         loo = np.array([dev[i] - slope_of(pinned & (np.arange(len(x)) != i)) * x[i]
                         for i in sc])
-        rate = _conformal(loo, lambda v: Z90 * np.sqrt(spread[sc] ** 2 + (v * x[sc]) ** 2),
-                          0.0, 1.0)
+        rate = quantile(rate_score(loo, spread[sc], x[sc], z_of(alpha)), alpha)
         out[fault] = dict(slope=slope, rate=rate, units=int(named.sum()), scored=len(sc),
                           named=float(named.mean()))
     return out
@@ -587,25 +564,62 @@ def sensor_warnings(sensors: Any, control_period: float) -> list[str]:
     return out
 
 
-def fault_calibration(cal: Mapping[str, Any], fault: str, scenario: str | None = None
-                      ) -> dict[str, Any] | None:
-    """A fault's calibration entry: the flight's own where the calibration has one (a
-    calibration scenario, by name) -- with the larger of its own and the pooled spread unless
-    it stands on :data:`OWN_UNITS` units -- else the pooled entry; None for a fault it lacks."""
+#: the pooled groups (Mondrian conformal groups over many flights): every answer's from the
+#: start, and every answer refitted at an onset (``by_scenario['onset']``)
+POOLED = 'faults'
+
+
+def groups_of(scenario: str | None) -> list[str]:
+    """The ONE fallback order of calibration groups for an answer on ``scenario`` (a
+    calibration scenario's name, ``own`` for a flight's own, ``onset:<scenario>`` or
+    ``onset`` for an answer refitted at an onset, None for none): the flight's own group, then
+    the pooled group of its kind, then the pooled group from the start -- an onset answer of a
+    fault no onset unit calibrated takes the from-start spread (with a warning), never the
+    noise's alone."""
+    from .rules import ONSET_ENTRY
+    s = scenario or ''
+    chain = [s] if s and s != ONSET_ENTRY else []
+    if s.startswith(ONSET_ENTRY):
+        chain.append(ONSET_ENTRY)
+    return chain + [POOLED]
+
+
+def resolve_entry(cal: Mapping[str, Any], fault: str, scenario: str | None = None
+                  ) -> tuple[dict[str, Any] | None, str | None]:
+    """A fault's calibration entry and the group it came from, the first of
+    :func:`groups_of` that has one; a flight's own entry (not a pooled one) takes the larger
+    of its own and the next group's spread unless it stands on :data:`OWN_UNITS` units.
+    (None, None) for a fault no group calibrates."""
+    from .rules import ONSET_ENTRY
     by = cal.get('by_scenario') or {}
-    # an onset flight's own entry stands beside those of every onset flight
-    pooled = (by.get('onset', {}) if (scenario or '').startswith('onset:') else
-              cal['faults']).get(fault)
-    own = by.get(scenario or '', {}).get(fault)
-    if own is None or pooled is None:
-        return own or pooled
-    if own['units'] >= OWN_UNITS:
-        return own
+    found = [(g, e) for g in groups_of(scenario)
+             if (e := (cal.get(POOLED) if g == POOLED else by.get(g, {})).get(fault)) is not None]
+    if not found:
+        return None, None
+    group, own = found[0]
+    # ``scored``: the units the spread's conformal quantile stands on
+    if group in (POOLED, ONSET_ENTRY) or len(found) == 1 or own['units'] >= OWN_UNITS:
+        return dict(own, scored=own.get('pinned', own['units'])), group
     # a spread from the nine units of one scenario is itself uncertain (a first-stage flow
     # loss on the built-in test held 7 of 12 new units with it, 12 of 12 with the pooled one:
     # measured)
-    return dict(own, sigma=max(own['sigma'], pooled['sigma']), k=max(own.get('k', 1.0),
-                                                                    pooled.get('k', 1.0)))
+    pooled = found[1][1]
+    return dict(own, sigma=max(own['sigma'], pooled['sigma']),
+                k=max(own.get('k', 1.0), pooled.get('k', 1.0)),
+                scored=max(own.get('pinned', own['units']),
+                           pooled.get('pinned', pooled['units']))), group
+
+
+def fault_calibration(cal: Mapping[str, Any], fault: str, scenario: str | None = None
+                      ) -> dict[str, Any] | None:
+    """A fault's calibration entry (:func:`resolve_entry`); None for a fault it lacks."""
+    return resolve_entry(cal, fault, scenario)[0]
+
+
+def alpha_of(cal: Mapping[str, Any] | None) -> float:
+    """The miscoverage a calibration was fitted for (:data:`.conformal.ALPHA` where it does
+    not say: those built before it did were all fitted at 0.1)."""
+    return float((cal or {}).get('alpha', ALPHA))
 
 
 def bias_at(c: Mapping[str, Any], g: float) -> float:
@@ -650,14 +664,12 @@ def gof_reference(cal: Mapping[str, Any], past: bool = False) -> list[float]:
 def gof_p_value(cal: Mapping[str, Any], rms: float, past: bool = False) -> float:
     """The share of right-hypothesis fits of the calibration set (:func:`gof_reference`) that
     fitted as badly or worse (with the plus-one rule: never 0)."""
-    ref = gof_reference(cal, past)
-    worse = len(ref) - int(np.searchsorted(ref, rms, side='left'))
-    return (worse + 1) / (len(ref) + 1)
+    return p_value(gof_reference(cal, past), rms)
 
 
-__all__ = ['calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen', 'fit_calibration',
+__all__ = ['alpha_of', 'calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen', 'fit_calibration',
            'gof_reference', 'past_correction',
-           'fault_calibration', 'bias_at', 'unit_signals', 'sensor_warnings', 'spread_of',
+           'fault_calibration', 'resolve_entry', 'groups_of', 'POOLED', 'bias_at', 'unit_signals', 'sensor_warnings', 'spread_of',
            'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at', 'end_level',
            'past_level', 'past_by',
            'to_g', 'from_g']

@@ -70,6 +70,7 @@ import numpy as np
 from ..errors import TwinError
 from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, EhaParams
+from .conformal import enough, units_needed, z_of
 from .fitting import (SIGNALS, Problem, bootstrap_intervals, effective_n, fit, jacobian_interval,
                       ratio_interval, start_grid)
 from .rules import (DETECTABLE, DIAGNOSABLE, ONSET_ENTRY, PAIR_EVIDENCE, above_floor,
@@ -187,9 +188,10 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     # that reaches the catalog's end the answer is a one-sided bound
     late_range = onset_fit.pop('severity_range', None) if onset_fit else None
     if onset_fit is not None:
-        # (the factor is set for 90 % of the calibration's onset units; without it the
-        # interval is the noise's 95 % likelihood-ratio one)
-        onset_fit['confidence'] = 0.9 if cal is not None else 0.95
+        # (the factor is set for 1 - alpha of the calibration's onset units; without it
+        # the interval is the noise's 95 % likelihood-ratio one)
+        from .calibration import alpha_of
+        onset_fit['confidence'] = 1.0 - alpha_of(cal) if cal is not None else 0.95
     # an onset refitted the verdict at it (not when the fit from the start stands and only
     # when the fault began is in doubt)
     refitted = onset_fit is not None and not onset_fit.get('from_start')
@@ -356,7 +358,7 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
     where SQ's nominal run is 5.4 residual scales from HD's against 0.8-1 on the calibration
     flights -- made every healthy unit 'unexplained' though no fault improved on healthy: the
     misfit was the model's, which this flight shows as it shows any fault's."""
-    from .calibration import gof_p_value, gof_reference, past_by, to_g
+    from .calibration import alpha_of, gof_p_value, gof_reference, past_by, to_g
     if cal is None:
         d.warnings.append(f'no model-form calibration for {d.model} with free '
                           f'{",".join(sorted(free)) or "none"}: the interval counts the '
@@ -392,28 +394,47 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
         return
     best.raw = (best.severity, best.interval)
     sevs, ivs = [], []
-    from .calibration import fault_calibration
+    from .calibration import POOLED, resolve_entry
+    alpha = alpha_of(cal)
     for f, s, iv in zip(best.faults, best.severities, best.intervals):
-        if fault_calibration(cal, f, scenario) is None:
+        c, group = resolve_entry(cal, f, scenario)
+        if c is None:
             # never a noise-only interval stated as calibrated without a word
             d.warnings.append(f'the model-form calibration has no entry for {f} (too few of '
                               'its units were named): its interval counts the measurement '
                               'noise only and may be too narrow')
+        elif group == POOLED and (scenario or '').startswith(ONSET_ENTRY):
+            d.warnings.append(f'no onset unit of {f} in the calibration: the interval takes '
+                              'the spread of answers fitted from the start, which an onset\'s '
+                              'may exceed')
+        if c is not None and not enough(c['scored'], alpha):
+            d.warnings.append(f'the calibration of {f} stands on {c["scored"]} units, fewer '
+                              f'than the {units_needed(alpha)} a {1 - alpha:.0%} conformal '
+                              'bound needs: its interval is the widest they ask, not '
+                              'guaranteed')
         s, iv, _ = model_form_estimate(cal, f, s, iv, scenario)
         sevs.append(s)
         ivs.append(iv)
     best.severity = sevs[0] if len(sevs) == 1 else sevs
     best.interval = ivs[0] if len(ivs) == 1 else ivs
-    d.confidence = 0.9
+    d.confidence = 1.0 - alpha
     # a calibration whose units fly severities up to each fault's alarm value only (one
     # built before it flew units past it, or a fault it has too few of there): an interval
     # wholly past it is extrapolated (at 1.15 of the way, 12 of 18 onset answers' intervals
     # held the truth: measured)
     for f, iv in zip(best.faults, ivs):
-        if f not in (cal.get('past') or {}) and min(past_by(f, to_g(f, s)) for s in iv) > 0:
+        if min(past_by(f, to_g(f, s)) for s in iv) <= 0:
+            continue
+        past = (cal.get('past') or {}).get(f)
+        if past is None:
             d.warnings.append(f'{f} past its alarm value ({FAULTS[f].demo:g}): the model-form '
                               'calibration flies severities up to it, so this answer is '
                               'extrapolated and its interval may be too narrow')
+        elif not enough(past.get('scored', past['units']), alpha):
+            d.warnings.append(f'{f} past its alarm value: the calibration\'s growth of the '
+                              f'spread there stands on {past.get("scored", past["units"])} '
+                              f'units, fewer than the {units_needed(alpha)} a '
+                              f'{1 - alpha:.0%} conformal bound needs: not guaranteed')
     d.interval_counts = 'measurement noise and the model-form error calibrated against HD' + (
         ' for a fault that began mid-flight' if (d.calibration_scenario or '').startswith(
             ONSET_ENTRY) else
@@ -452,7 +473,7 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
     ``scenario``: the calibration scenario the flight is (its own entry, where there is one).
     A fit past the fault's alarm value is corrected further, and its spread widened, by the
     calibration's units past it (:func:`.calibration.past_correction`)."""
-    from .calibration import (Z90, bias_at, fault_calibration, from_g, past_correction,
+    from .calibration import (alpha_of, bias_at, fault_calibration, from_g, past_correction,
                               spread_of, to_g)
     spec = FAULTS[fault]
     c = fault_calibration(cal, fault, scenario)
@@ -463,7 +484,7 @@ def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
     g = to_g(fault, severity)
     further, c = past_correction(cal, fault, g, c, (scenario or '').startswith(ONSET_ENTRY))
     g = g - bias_at(c, g) - further
-    half = Z90 * spread_of(c, se)
+    half = z_of(alpha_of(cal)) * spread_of(c, se)
     est = min(max(from_g(fault, g), spec.lo), spec.hi)
     iv = (min(max(from_g(fault, g - half), spec.lo), spec.hi),
           max(min(from_g(fault, g + half), spec.hi), spec.lo))

@@ -50,7 +50,8 @@ from ..physics.faults import FAULTS, combine
 from ..physics.params import DEFAULTS, EhaParams
 from ..physics.scenario import Scenario, as_scenario
 from ..physics.simulate import simulate
-from .calibration import LEVELS, NOISE, VARY, Z90, from_g, severity_at, to_g
+from .calibration import LEVELS, NOISE, VARY, alpha_of, from_g, severity_at, to_g
+from .conformal import z_of
 from .diagnosis import DETECTABLE, DIAGNOSABLE
 from .fitting import RESIDUAL_SCALE, SIGNALS, effective_n
 
@@ -168,8 +169,8 @@ class Excitation:
 
     def resolution(self, fault: str, q: float = MILD,
                    calibration: Mapping[str, Any] | None = None) -> float:
-        """Half-width of a 90 % interval at ``q`` of the way to the alarm value, relative to
-        the severity's distance from healthy (0.1: +-10 %)."""
+        """Half-width of the calibration's interval (90 %) at ``q`` of the way to the alarm
+        value, relative to the severity's distance from healthy (0.1: +-10 %)."""
         spec = FAULTS[fault]
         s = severity_at(fault, q)
         g = to_g(fault, s)
@@ -180,7 +181,7 @@ class Excitation:
         var = self.rss0 / self.n * (self.n / self.n_eff)       # per-sample, correlation
         se = math.sqrt(var / info) if info > 0 else math.inf
         sigma = ((calibration or {}).get('faults', {}).get(fault) or {}).get('sigma', 0.0)
-        half = Z90 * math.hypot(se, sigma)
+        half = z_of(alpha_of(calibration)) * math.hypot(se, sigma)
         if not math.isfinite(half):
             return math.inf
         width = abs(from_g(fault, g + half) - from_g(fault, g - half)) / 2

@@ -50,10 +50,11 @@ from ..outputs import output_file
 from ..physics.faults import FAULTS
 from ..physics.params import EhaParams
 from .calibration import LEVELS, fit_calibration, to_g, unit_record, unit_signals
+from .conformal import ALPHA, quantile
 from .rules import fraction
 
 #: the method's version: a cache entry of another is not read (its key differs)
-VERSION = 1
+VERSION = 2
 #: the units per fault and level (the healthy ones: twice as many per level)
 DEFAULT_UNITS = 3
 #: the nuisance spread of the units, as a multiple of the documented one
@@ -81,14 +82,14 @@ def _inputs(scenario: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def flight_key(scenario: Mapping[str, Any], design: EhaParams, model: str,
-               free: Sequence[str], control_period: float) -> str:
+               free: Sequence[str], control_period: float, alpha: float = ALPHA) -> str:
     """The cache key: a digest of the flight's inputs, the design (every parameter, derived
-    ones resolved), the fitted model, the free nuisance, the control period and
-    :data:`VERSION` -- what a diagnosis of a run can know of it; the units and seed it was
-    computed with are in its ``about``."""
+    ones resolved), the fitted model, the free nuisance, the control period, the intervals'
+    miscoverage ``alpha`` and :data:`VERSION` -- what a diagnosis of a run can know of it; the
+    units and seed it was computed with are in its ``about``."""
     payload = json.dumps(dict(version=VERSION, inputs=_inputs(scenario),
                               design=design.resolved(), model=model, free=sorted(free),
-                              control_period=float(control_period)),
+                              control_period=float(control_period), alpha=float(alpha)),
                          sort_keys=True, default=float)
     return hashlib.sha256(payload.encode()).hexdigest()[:24]
 
@@ -138,16 +139,22 @@ def run_unit(job: tuple, scenario: Mapping[str, Any], design: EhaParams, model: 
 
 def verdict_fraction(records: Iterable[Mapping[str, Any]]) -> float:
     """The verdict floor (module docstring): the largest fraction of the way to its alarm
-    value of the fault any healthy unit would have been named with; 0 where none would."""
+    value of the fault any healthy unit would have been named with; 0 where none would --
+    the conformal quantile at ``alpha = 1/(n + 1)`` of the healthy units' scores (their best
+    fault's fraction, 0 for those healthy scored best), the one that bounds the false-alarm
+    rate of a new healthy unit by ``1/(n + 1)``."""
     healthy = [r for r in records if r['fault'] is None]
     if not healthy:
         raise TwinError('a flight calibration needs healthy units')
-    return max([r['best'][1] for r in healthy if r.get('best')], default=0.0)
+    scores = [r['best'][1] if r.get('best') else 0.0 for r in healthy]
+    return quantile(scores, 1.0 / (len(scores) + 1))
 
 
-def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str]) -> dict[str, Any]:
-    """The calibration entry of a flight from its units' records."""
-    cal = fit_calibration(records)
+def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str], alpha: float = ALPHA
+        ) -> dict[str, Any]:
+    """The calibration entry of a flight from its units' records, its intervals at
+    miscoverage ``alpha``."""
+    cal = fit_calibration(records, alpha=alpha)
     u = verdict_fraction(records)
     cal['verdict_fraction'] = u
     cal['healthy_floor'] = {f: u * abs(to_g(f, FAULTS[f].demo)) for f in faults}
@@ -198,7 +205,7 @@ def _unit(args):
 def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: str = 'SQ',
                      free: Sequence[str] = (), control_period: float = 1e-3,
                      faults: Sequence[str] | None = None, units: int = DEFAULT_UNITS,
-                     seed: int = 0, workers: int | None = None
+                     seed: int = 0, workers: int | None = None, alpha: float = ALPHA
                      ) -> tuple[dict[str, Any], Path]:
     """The flight's calibration (cached, or computed and cached): (entry, its path)."""
     from ..progress import progress
@@ -206,7 +213,7 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
     faults = list(DIAGNOSABLE if faults is None else faults)
     if not 1 <= units <= 100:
         raise TwinError(f'units must be 1 to 100 per fault and level, got {units}')
-    key = flight_key(scenario, design, model, free, control_period)
+    key = flight_key(scenario, design, model, free, control_period, alpha)
     have = cached(key)
     path = entry_path(key)
     about = (have or {}).get('about', {})
@@ -237,9 +244,9 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
                     done[rec['id']] = rec
                     out.write(json.dumps(rec) + '\n')
                     out.flush()
-    cal = fit(list(done.values()), faults)
+    cal = fit(list(done.values()), faults, alpha)
     cal['about'] = dict(version=VERSION, key=key, model=model, free=sorted(free),
-                        units=units, seed=seed, faults=faults, spread=SPREAD,
+                        units=units, seed=seed, faults=faults, spread=SPREAD, alpha=alpha,
                         levels=list(LEVELS), inputs=_inputs(scenario),
                         design={k: v for k, v in design.resolved().items()})
     with output_file(path) as fh:

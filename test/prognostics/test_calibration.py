@@ -17,6 +17,9 @@ from servovalve_twin.prognostics.calibration import (LEVELS, calibration_for, fi
                                                      unit_signals)
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, UNEXPLAINED, diagnose
 
+#: the two-sided 90 % normal quantile, by hand (tables): not the code's own
+Z90 = 1.6449
+
 
 def test_levels_and_coordinates_against_hand_values():
     # geometric for a multiplier: 0.3 of the way from 1 to 10 is 10^0.3
@@ -57,6 +60,23 @@ def test_few_units_are_held_at_the_conformal_rank():
     c = fit_calibration(rec)['faults']['leakage_growth']
     assert c['bias'] == pytest.approx(0.0)
     assert c['sigma'] * 1.6449 == pytest.approx(0.6, rel=1e-3)
+
+
+def test_the_spread_is_the_conformal_quantile_at_the_stated_alpha():
+    """19 units erring 0.01 ... 0.19 in g, se 0: the 90 % spread holds the 18th (ceil(0.9 *
+    20)), the 80 % one the 16th (ceil(0.8 * 20)), at z 1.6449 and 1.2816 (tables)."""
+    rec = [dict(fault='leakage_growth', truth=2.0, named='leakage_growth',
+                estimate=2.0 * math.exp(0.01 * i * (-1) ** i), se=0.0, rms=1.0)
+           for i in range(1, 20)]
+    c90 = fit_calibration(rec)
+    c80 = fit_calibration(rec, alpha=0.2)
+    assert (c90['alpha'], c80['alpha']) == (0.1, 0.2)
+    # (the bias is the median error, +0.01 or -0.01 here: the deviations shift by it)
+    dev = sorted(abs(0.01 * i * (-1) ** i - c90['faults']['leakage_growth']['bias'])
+                 for i in range(1, 20))
+    assert c90['faults']['leakage_growth']['sigma'] * Z90 == pytest.approx(dev[17], rel=1e-3)
+    assert c80['faults']['leakage_growth']['sigma'] * 1.2816 == pytest.approx(dev[15],
+                                                                             rel=1e-3)
 
 
 def test_the_goodness_of_fit_p_value_counts_the_reference():
@@ -139,8 +159,9 @@ def test_a_linear_bias_per_scenario_is_recovered():
     assert cal['by_scenario']['paper']['leakage_growth']['slope'] == pytest.approx(0, abs=0.01)
     assert calibration.fault_calibration(cal, 'leakage_growth', 'paper')['bias'] == \
         pytest.approx(-0.05, abs=0.005)
-    assert calibration.fault_calibration(cal, 'leakage_growth', 'eval') is cal['faults'][
-        'leakage_growth']
+    assert calibration.resolve_entry(cal, 'leakage_growth', 'eval') == (
+        dict(cal['faults']['leakage_growth'], scored=cal['faults']['leakage_growth']['pinned']),
+        calibration.POOLED)
     # a scenario's own spread stands alone on 200 units; on nine it is never narrower than
     # the pooled one (nine units do not pin it)
     pooled = cal['faults']['leakage_growth']['sigma']
@@ -206,7 +227,7 @@ def test_a_kernel_bias_is_scored_on_units_it_was_not_fitted_to():
                 named='static_friction', estimate=float(np.exp(0.5 + 0.6 * i + e)), se=0.0,
                 rms=1.0, scenario='bit') for i, e in enumerate([0.1, -0.1] * 4)]
     own = fit_calibration(rec)['by_scenario']['bit']['static_friction']
-    assert calibration.Z90 * own['sigma'] > 0.15
+    assert Z90 * own['sigma'] > 0.15
 
 
 def test_a_fit_that_does_not_pin_its_severity_widens_its_own_interval_not_every_one():
@@ -226,7 +247,7 @@ def test_a_fit_that_does_not_pin_its_severity_widens_its_own_interval_not_every_
     assert c['pinned'] == 40 and c['sigma'] < 0.025
     assert 1.5 < c['k'] < 3.0
     held = [abs(math.log(r['estimate'] / r['truth']) - c['bias'])
-            <= calibration.Z90 * calibration.spread_of(c, r['se']) for r in rec]
+            <= Z90 * calibration.spread_of(c, r['se']) for r in rec]
     assert sum(held) >= 54
 
 

@@ -370,6 +370,12 @@ def test_diagnose_cli_writes_the_schema(flights, tmp_path, capsys):
     assert [c['fault'] for c in j['candidates']].count('leakage_growth+null_bias') == 1
     assert j['fault'] == 'leakage_growth' and len(j['candidates']) == 4
     assert 'leakage_growth, severity 6' in capsys.readouterr().out
+    # another level than the packaged calibration's, no calibration of the flight: said, with
+    # the command that makes one
+    assert main(['diagnose', str(bags[0]), '--json', str(out), '--faults', 'leakage_growth',
+                 '--model', 'C2', '--alpha', '0.05']) == 0
+    assert [w for w in json.loads(out.read_text())['warnings'] if 'alpha 0.05' in w and
+            f'calibrate-diagnosis {bags[0]} --alpha 0.05' in w]
 
 
 def test_prognose_cli_over_three_flights(flights, tmp_path):
@@ -682,7 +688,8 @@ def test_an_answer_past_the_alarm_value_is_calibrated_there(monkeypatch):
                      scenario='paper')
         assert d.best.fault == fault and not d.verdict
         return truth, d.best.interval, any(
-            w.startswith(f'{fault} past its alarm value') for w in d.warnings)
+            w.startswith(f'{fault} past its alarm value') and 'extrapolated' in w
+            for w in d.warnings)
 
     past = [('leakage_growth', 1.5), ('supply_loss', 2.0)]
     for fault, q in past:
@@ -851,3 +858,24 @@ def test_a_best_fit_below_the_floor_is_healthy_not_the_next_fault():
     assert _verdict_candidate(ranked, by_name, None, None) is gain
     pair.score, pair.severities = -30.0 - PAIR_EVIDENCE, (0.05, 0.15)   # supply below floor
     assert _verdict_candidate(ranked, by_name, None, None) is gain
+
+
+def test_an_interval_on_too_few_calibration_units_says_it_is_not_guaranteed():
+    """A fault's spread from 8 units (a 90 % conformal bound needs 9) is used, and the answer
+    says so; from 9 it says nothing."""
+    sig, truth, _ = calibration.unit_signals('leakage_growth', 1.0, 'paper', 11, spread=1.0)
+    packaged = calibration.calibration_for('SQ', ())
+
+    def warned(pinned):
+        entry = dict(packaged['faults']['leakage_growth'], units=pinned, pinned=pinned)
+        cal = dict(packaged, faults=dict(packaged['faults'], leakage_growth=entry),
+                   by_scenario={})
+        d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ',
+                     faults=('leakage_growth',), calibration=cal)
+        assert d.best.fault == 'leakage_growth' and d.confidence == 0.9
+        return [w for w in d.warnings if 'conformal bound needs' in w]
+
+    assert warned(8) == ['the calibration of leakage_growth stands on 8 units, fewer than '
+                         'the 9 a 90% conformal bound needs: its interval is the widest '
+                         'they ask, not guaranteed']
+    assert warned(9) == []

@@ -22,8 +22,8 @@ FLIGHT = {'duration': 0.3, 'com': [[0.0, 0.0], [0.05, 0.02]], 'fr': [[0.0, 0.0],
 
 
 def test_the_key_follows_what_the_flight_and_design_are():
-    """Another input, design parameter (HD's or not), model, free nuisance or control period is
-    another calibration; the scenario's name or windows are not."""
+    """Another input, design parameter (HD's or not), model, free nuisance, control period or
+    alpha is another calibration; the scenario's name or windows are not."""
     base = fc.flight_key(FLIGHT, DEFAULTS, 'SQ', ['M', 'CJ'], 1e-3)
     assert base == fc.flight_key(dict(FLIGHT, name='x', windows={'a': [0, 0.1]}), DEFAULTS,
                                  'SQ', ['CJ', 'M'], 1e-3)
@@ -34,7 +34,8 @@ def test_the_key_follows_what_the_flight_and_design_are():
               fc.flight_key(FLIGHT, DEFAULTS.replace(c=1e-5), 'SQ', ['M', 'CJ'], 1e-3),
               fc.flight_key(FLIGHT, DEFAULTS, 'C2', ['M', 'CJ'], 1e-3),
               fc.flight_key(FLIGHT, DEFAULTS, 'SQ', ['M'], 1e-3),
-              fc.flight_key(FLIGHT, DEFAULTS, 'SQ', ['M', 'CJ'], 2e-3)]
+              fc.flight_key(FLIGHT, DEFAULTS, 'SQ', ['M', 'CJ'], 2e-3),
+              fc.flight_key(FLIGHT, DEFAULTS, 'SQ', ['M', 'CJ'], 1e-3, alpha=0.05)]
     assert len({base, *others}) == len(others) + 1
 
 
