@@ -205,6 +205,8 @@ class CalibrateDiagnosis(Command):
                             'diagnose --alpha A uses this calibration')
         p.add_argument('--workers', type=int, default=None, metavar='N',
                        help='processes (default: one per core)')
+        p.add_argument('--scheduler', metavar='tcp://HOST:PORT',
+                       help='run the units on this Dask cluster instead of local processes')
         p.add_argument('--control-period', type=positive_float, metavar='S',
                        help="the ECU's period (default: the bag's, else 1 ms)")
         add_param_options(p)
@@ -219,17 +221,25 @@ class CalibrateDiagnosis(Command):
             raise TwinError(f'--workers must be >= 1, got {args.workers}')
         if not 0 <= args.seed < 2 ** 63:
             raise TwinError(f'--seed must be an integer in [0, 2**63 - 1], got {args.seed}')
+        from ..prognostics.parallel import (Signalled, check_scheduler, restore_signals,
+                                            stop_on_signals)
+        if args.scheduler:
+            check_scheduler(args.scheduler)
         n = len(jobs(DIAGNOSABLE, max(units, 1), args.seed))
         print(f'calibrating diagnose on {args.flight}: {n} HD units (model {args.model}, '
               f'free {",".join(free) or "none"}); a rerun resumes', file=sys.stderr)
+        old = stop_on_signals()
         try:
             cal, path = calibrate_flight(scenario, design, model=args.model, free=free,
                                          control_period=period, units=units, seed=args.seed,
-                                         workers=args.workers, alpha=args.alpha)
-        except KeyboardInterrupt:
+                                         workers=args.workers, alpha=args.alpha,
+                                         scheduler=args.scheduler)
+        except KeyboardInterrupt as exc:
             print('servovalve-twin calibrate-diagnosis: interrupted; the finished units are '
                   'kept: run the same command again to resume', file=sys.stderr)
-            return 130
+            return 128 + exc.signum if isinstance(exc, Signalled) else 130
+        finally:
+            restore_signals(old)
         print(_calibration_summary(cal))
         print(f'-> {path}')
         return 0

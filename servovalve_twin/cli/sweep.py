@@ -54,8 +54,8 @@ class Sweep(Command):
         import time
         from ..prognostics.monitor import DEFAULT_MONITOR_MODEL
         from ..prognostics.dataset import SweepStopped, write_dataset
-        from ..prognostics.sweep import (iter_results, make_cases, parse_fault_specs,
-                                         parse_vary, restore_signals, stop_on_signals)
+        from ..prognostics.parallel import restore_signals, stop_on_signals
+        from ..prognostics.sweep import iter_results, make_cases, parse_fault_specs, parse_vary
         grid, ranges = parse_fault_specs(args.fault)
         if ranges and not args.draws:
             raise TwinError('a fault range NAME:LO~HI needs --draws N')
@@ -69,7 +69,7 @@ class Sweep(Command):
         if not 0 <= args.seed < 2 ** 63:
             raise TwinError(f'--seed must be an integer in [0, 2**63 - 1], got {args.seed}')
         if args.scheduler:
-            from ..prognostics.sweep import check_scheduler
+            from ..prognostics.parallel import check_scheduler
             check_scheduler(args.scheduler)
         cases = make_cases(plant_model=args.plant_model,
                            monitor_model=args.monitor_model or DEFAULT_MONITOR_MODEL,

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import TwinError
 from ..outputs import output_file, output_path
-from .sweep import SchedulerLost
+from .parallel import SchedulerLost
 
 
 class SweepStopped(TwinError):
@@ -69,7 +69,7 @@ def write_dataset(out: Path, results: Iterable[Mapping[str, Any]], total: int | 
                     with npz.open(f'run{row["run_id"]}_{k}.npy', 'w', force_zip64=True) as fh:
                         np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
     except KeyboardInterrupt as exc:
-        # Ctrl-C, or SIGTERM / SIGHUP (:class:`.sweep.Signalled`): 128 + the signal
+        # Ctrl-C, or SIGTERM / SIGHUP (:class:`.parallel.Signalled`): 128 + the signal
         signum = getattr(exc, 'signum', 2)
         stopped = ('interrupted' if signum == 2 else f'stopped by {exc}', 128 + signum)
     except BrokenProcessPool:

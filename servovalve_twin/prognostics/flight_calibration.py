@@ -41,7 +41,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -51,6 +50,7 @@ from ..physics.faults import FAULTS
 from ..physics.params import EhaParams
 from .calibration import LEVELS, fit_calibration, to_g, unit_record, unit_signals
 from .conformal import ALPHA, quantile
+from .parallel import map_unordered
 from .rules import fraction
 
 #: the method's version: a cache entry of another is not read (its key differs)
@@ -205,9 +205,11 @@ def _unit(args):
 def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: str = 'SQ',
                      free: Sequence[str] = (), control_period: float = 1e-3,
                      faults: Sequence[str] | None = None, units: int = DEFAULT_UNITS,
-                     seed: int = 0, workers: int | None = None, alpha: float = ALPHA
-                     ) -> tuple[dict[str, Any], Path]:
-    """The flight's calibration (cached, or computed and cached): (entry, its path)."""
+                     seed: int = 0, workers: int | None = None, alpha: float = ALPHA,
+                     scheduler: str | None = None) -> tuple[dict[str, Any], Path]:
+    """The flight's calibration (cached, or computed and cached): (entry, its path). The units
+    run on ``workers`` local processes (default: one per core), or on the Dask cluster at
+    ``scheduler``, and are kept as each finishes."""
     from ..progress import progress
     from .rules import DIAGNOSABLE
     faults = list(DIAGNOSABLE if faults is None else faults)
@@ -234,17 +236,14 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
     args = [(j, dict(scenario), design, model, tuple(free), control_period, tuple(faults))
             for j in todo]
     with open(partial, 'a', encoding='utf-8') as out:
-        if todo:
-            n = workers or os.cpu_count() or 1
-            from .sweep import worker_init
-            # (workers ignore Ctrl-C and end with the parent, as a sweep's)
-            with ProcessPoolExecutor(max_workers=n, initializer=worker_init) as pool:
-                stream = pool.map(_unit, args) if n > 1 else map(_unit, args)
-                for rec in progress(stream, total=len(todo), desc='calibrate', unit='unit'):
-                    done[rec['id']] = rec
-                    out.write(json.dumps(rec) + '\n')
-                    out.flush()
-    cal = fit(list(done.values()), faults, alpha)
+        # (a unit takes ~1 s: one per Dask task costs ~2 % of it)
+        stream = map_unordered(_unit, args, workers=workers, scheduler=scheduler)
+        for rec in progress(stream, total=len(todo), desc='calibrate', unit='unit'):
+            done[rec['id']] = rec
+            out.write(json.dumps(rec) + '\n')
+            out.flush()
+    # (in the units' order, not as they finished: the same units give the same entry)
+    cal = fit([done[k] for k in sorted(done)], faults, alpha)
     cal['about'] = dict(version=VERSION, key=key, model=model, free=sorted(free),
                         units=units, seed=seed, faults=faults, spread=SPREAD, alpha=alpha,
                         levels=list(LEVELS), inputs=_inputs(scenario),

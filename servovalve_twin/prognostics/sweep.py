@@ -16,11 +16,9 @@ they arrive, so the parent never holds the traces and a stopped sweep keeps its 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
-import multiprocessing
 import os
-import signal
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
@@ -31,6 +29,7 @@ from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, make_params
 from ..physics.simulate import simulate
 from ..progress import progress
+from .parallel import map_unordered
 from .monitor import (DEFAULT_MONITOR_MODEL, ERROR, WARN, HealthConfig, MonitorAlgorithm,
                       MonitorResult)
 
@@ -211,166 +210,34 @@ def run_cases(cases: Sequence[Case], *, workers: int | None = None,
                   key=lambda r: r['row']['run_id'])
 
 
-def bad_scheduler(scheduler: str, exc: Exception) -> str:
-    return (f'--scheduler {scheduler!r} is not an address (expected tcp://HOST:PORT): '
-            f'{str(exc)[:100]}')
-
-
-def check_scheduler(scheduler: str) -> None:
-    """Refuse a Dask scheduler address that is no address at all ('::::'), before anything
-    is written."""
-    try:
-        from distributed.comm.addressing import parse_address, parse_host_port
-    except ImportError:
-        return                  # iter_results says what to install
-    try:
-        parse_host_port(parse_address(scheduler)[1])
-    except ValueError as exc:
-        raise TwinError(bad_scheduler(scheduler, exc)) from None
+#: runs per Dask task: a run of ~20 ms costs ~15 ms of Dask's own CPU per task
+DASK_BATCH = 16
 
 
 def iter_results(cases: Sequence[Case], *, workers: int | None = None,
                  scheduler: str | None = None, traces: bool = True
                  ) -> Iterator[dict[str, Any]]:
     """Run every case and yield the results as the runs finish (each row carries its
-    ``run_id``): on a Dask cluster when ``scheduler`` is its address, else on a local process
-    pool of ``workers`` (default: the number of cores). ``traces`` = False returns rows only
-    (what a dataset needs). Closing the stream early (Ctrl-C in the consumer) cancels the runs
-    not started; the pool's workers ignore SIGINT, so that the parent alone decides."""
+    ``run_id``): on a Dask cluster when ``scheduler`` is its address (in tasks of
+    :data:`DASK_BATCH` runs), else on a local process pool of ``workers`` (default: the number
+    of cores) -- :func:`.parallel.map_unordered`. ``traces`` = False returns rows only (what
+    a dataset needs). Closing the stream early (Ctrl-C in the consumer) cancels the runs not
+    started; the pool's workers ignore SIGINT, so that the parent alone decides."""
     cases = list(cases)
+    run = functools.partial(run_case, traces=traces)
     if scheduler:
-        try:
-            from dask.distributed import Client
-        except ImportError:
-            raise TwinError('--scheduler needs dask.distributed: pip install '
-                            "'dask[distributed]'") from None
-        try:
-            client = Client(scheduler, timeout=10)
-        except (OSError, TimeoutError) as exc:
-            raise TwinError(f'cannot reach the Dask scheduler at {scheduler}: {exc}') from None
-        except ValueError as exc:           # '::::' is no address at all
-            raise TwinError(bad_scheduler(scheduler, exc)) from None
-        from concurrent.futures import CancelledError
-        try:
-            futures = client.map(run_case, cases, [traces] * len(cases), pure=False)
-            for f in progress(futures, total=len(futures), desc='sweep', unit='run'):
-                try:
-                    yield _dask_result(client, f, scheduler)
-                except (CancelledError, OSError) as exc:
-                    # the scheduler went away: its futures are cancelled (a traceback, rc 1)
-                    raise SchedulerLost(f'lost the Dask scheduler at {scheduler} '
-                                        f'({type(exc).__name__})') from None
-        finally:
-            client.close()
+        yield from progress(map_unordered(run, cases, scheduler=scheduler, batch=DASK_BATCH),
+                            total=len(cases), desc='sweep', unit='run')
         return
     workers = workers or os.cpu_count() or 1
     if workers == 1 or len(cases) <= 1:
-        for c in progress(cases, desc='sweep', unit='run'):
-            yield run_case(c, traces)
+        yield from progress(map(run, cases), total=len(cases), desc='sweep', unit='run')
         return
     # the first case runs here: it loads (or compiles) the physics of this plant and monitor
     # in the parent, which the forked workers then share instead of each loading its own
-    yield run_case(cases[0], traces)
-    rest = cases[1:]
-    ctx = multiprocessing.get_context('fork') if 'fork' in \
-        multiprocessing.get_all_start_methods() else None
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=worker_init)
-    try:
-        yield from progress(_as_finished(pool, rest, traces, 4 * workers),
-                            total=len(cases), initial=1, desc='sweep', unit='run')
-    finally:
-        # an early end (Ctrl-C, a lost worker): the runs not started are dropped and only
-        # those running are waited for -- one run each, not the whole queue
-        pool.shutdown(wait=True, cancel_futures=True)
-
-
-class Signalled(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised where Ctrl-C would be, so that a sweep stopped by
-    ``docker stop``, systemd or a CI time-out ends as an interrupted one does: its workers
-    with it, what finished written whole. ``signum``: the signal."""
-
-    def __init__(self, signum: int):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _raise_signalled(signum, _frame):
-    raise Signalled(signum)
-
-
-def stop_on_signals() -> dict:
-    """SIGTERM and SIGHUP raise :class:`Signalled` in the main thread (what they did: end the
-    process at once, its pool workers left running with PPID 1 and its outputs half
-    written); returns the handlers replaced, for :func:`restore_signals`."""
-    return {sig: signal.signal(sig, _raise_signalled) for sig in (signal.SIGTERM, signal.SIGHUP)}
-
-
-def restore_signals(old: Mapping) -> None:
-    for sig, handler in old.items():
-        signal.signal(sig, handler)
-
-
-def worker_init() -> None:
-    """A pool worker: Ctrl-C is the parent's to decide (it stops the runs not started and
-    waits for these); SIGTERM and SIGHUP end it; and it ends with its parent (Linux's
-    parent-death signal), so that a parent killed outright (SIGKILL) leaves no worker."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, signal.SIG_DFL)
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM)           # PR_SET_PDEATHSIG
-        if os.getppid() == 1:                   # the parent died before the call
-            os._exit(1)
-    except (OSError, AttributeError):           # not Linux: the pool's own shutdown serves
-        pass
-
-
-class SchedulerLost(TwinError):
-    """The Dask scheduler went away mid-sweep: the runs it had not returned are lost."""
-
-
-def _as_finished(pool: ProcessPoolExecutor, cases: Sequence[Case], traces: bool,
-                 in_flight: int) -> Iterator[dict[str, Any]]:
-    """The results of ``cases`` on ``pool`` as they finish, with at most ``in_flight``
-    submitted at a time (a sweep of 10^5 runs never holds 10^5 futures)."""
-    todo = iter(cases)
-    pending: set = set()
-    while True:
-        for case in todo:
-            pending.add(pool.submit(run_case, case, traces))
-            if len(pending) >= in_flight:
-                break
-        if not pending:
-            return
-        done, pending = wait(pending, return_when=FIRST_COMPLETED)
-        for f in done:
-            yield f.result()
-
-
-#: how long a Dask cluster may have no worker at all before a sweep gives up on it [s]
-NO_WORKER_S = 60.0
-
-
-def _dask_result(client, future, scheduler: str) -> dict[str, Any]:
-    """A run's result from the cluster; a cluster left without any worker (they died and
-    nothing restarts them) is an error after :data:`NO_WORKER_S`, not a wait forever."""
-    import time
-    from distributed import TimeoutError as DaskTimeout
-    since = None
-    while True:
-        try:
-            return future.result(timeout=5)
-        except (DaskTimeout, TimeoutError):
-            if client.scheduler_info().get('workers'):
-                since = None
-            elif since is None:
-                since = time.monotonic()
-            elif time.monotonic() - since > NO_WORKER_S:
-                raise TwinError(f'the Dask cluster at {scheduler} has had no worker for '
-                                f'{NO_WORKER_S:g} s: start workers, or sweep locally '
-                                '(without --scheduler)') from None
+    yield run(cases[0])
+    yield from progress(map_unordered(run, cases[1:], workers=workers),
+                        total=len(cases), initial=1, desc='sweep', unit='run')
 
 
 def parse_fault_specs(items: list[str]) -> tuple[dict[str, list[float]], dict[str, tuple]]:

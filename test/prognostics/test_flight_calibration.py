@@ -186,3 +186,20 @@ def test_a_flight_calibration_is_found_by_diagnose(tmp_path, monkeypatch):
     run = SimpleNamespace(provenance=prov)
     assert flight_calibration_of(run, DEFAULTS, 'SQ', ('M', 'CJ'), 1e-3) == cal
     assert flight_calibration_of(run, DEFAULTS, 'SQ', (), 1e-3) is None
+
+
+@pytest.mark.slow
+def test_a_calibration_on_a_dask_cluster_is_the_local_one(tmp_path, monkeypatch):
+    """The units on a cluster of two worker processes: the same entry, to the bit, as on
+    local processes (whatever order they finish in)."""
+    import distributed
+    kw = dict(faults=['leakage_growth'], units=1)
+    monkeypatch.setenv(fc.CACHE_ENV, str(tmp_path / 'local'))
+    local, _ = fc.calibrate_flight(FLIGHT, DEFAULTS, workers=2, **kw)
+    monkeypatch.setenv(fc.CACHE_ENV, str(tmp_path / 'cluster'))
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        remote, _ = fc.calibrate_flight(FLIGHT, DEFAULTS, scheduler=cluster.scheduler_address,
+                                        **kw)
+    assert json.dumps(remote, sort_keys=True) == json.dumps(local, sort_keys=True)
+    assert remote['healthy_units'] == 6
