@@ -306,6 +306,9 @@ class MonitorThresholds(Command):
                        help='per-flight false-alarm rate of WARN (default 1e-2)')
         p.add_argument('--out', required=True, metavar='FILE.yaml',
                        help='a ROS 2 parameters file for the monitor node (a new file)')
+        p.add_argument('--reveal-units', type=int, default=2, metavar='N',
+                       help='HD units per catalog fault (at its alarm severity) and flight '
+                            'flown to report what the thresholds reveal (default 2; 0: none)')
 
     def main(self, args):
         import yaml
@@ -324,6 +327,9 @@ class MonitorThresholds(Command):
             raise TwinError('--far-error must not exceed --far-warn (ERROR is the rarer level)')
         if args.units > MAX_UNITS:
             raise TwinError(f'--units {args.units}: allowed 1 to {MAX_UNITS} per flight')
+        if not 0 <= args.reveal_units <= MAX_UNITS:
+            raise TwinError(f'--reveal-units {args.reveal_units}: allowed 0 to {MAX_UNITS} '
+                            'per fault and flight')
         out = Path(args.out)
         if out.exists() or out.is_symlink():
             raise TwinError(f'--out {args.out!r} exists; monitor-thresholds writes a new file '
@@ -344,6 +350,11 @@ class MonitorThresholds(Command):
                                  sort_keys=False))
         write_new(out, text)
         print(text, end='')
+        if args.reveal_units:
+            from ..prognostics.monitor import HealthConfig
+            from ..prognostics.thresholds import format_revealed, revealed
+            print(format_revealed(revealed(model, flights, HealthConfig(**th),
+                                           args.reveal_units, args.seed + 1)))
         return 0
 
 

@@ -91,6 +91,62 @@ def healthy_peaks(models: Sequence[str], flights: Mapping[str, Any], units: int,
     return peaks
 
 
+def revealed(model: str, flights: Mapping[str, Any], config: HealthConfig, units: int,
+             seed: int, *, spread: float = 1.5) -> dict[str, dict[str, list[int]]]:
+    """What the flights reveal to the monitor at ``config``'s thresholds: per catalog fault
+    and flight, the worst level (0 OK, 1 WARN, 2 ERROR) it raises on each of ``units`` HD
+    units with the fault at its alarm severity from the start (nuisance within ``spread`` x
+    the documented spread, documented noise; seeds of their own). Thresholds that keep
+    healthy units quiet on a flight may leave a fault silent there too: a slow hold reveals
+    no friction, a flight without load no leak."""
+    from ..config import load_scenario
+    from ..physics.faults import FAULTS
+    from ..physics.params import DEFAULTS
+    from ..physics.scenario import scenario_from_dict
+    from .calibration import NOISE, VARY
+    from .sweep import draw_nuisance, measured
+    rng = np.random.default_rng(seed)
+    out: dict[str, dict[str, list[int]]] = {f: {} for f in FAULTS}
+    for name in flights:
+        scn = load_scenario(flights[name])
+        design = effective_params(scn)
+        for fault, spec in FAULTS.items():
+            faulty = scenario_from_dict(dict(scn.to_dict(), faults=[
+                {'at': 0.0, 'fault': fault, 'severity': spec.demo}]))
+            levels = out[fault].setdefault(name, [])
+            for _ in range(units):
+                unit = DEFAULTS.replace(**draw_nuisance(
+                    rng, {k: v * spread for k, v in VARY.items()}, DEFAULTS))
+                run = simulate('HD', faulty, params=effective_params(scn, None, unit),
+                               ecu_period=1e-3)
+                noisy = dataclasses.replace(run, signals=measured(run.signals, NOISE, rng))
+                levels.append(int(monitor_run(noisy, model, config, nominal=design
+                                              ).level.max()))
+    return out
+
+
+def format_revealed(rev: Mapping[str, Mapping[str, Sequence[int]]]) -> str:
+    """The table of :func:`revealed`: per fault, ERROR (and WARN) units of each flight, and
+    the faults no flight reveals with an ERROR in most units."""
+    from ..physics.faults import FAULTS
+    flights = list(next(iter(rev.values())))
+    lines = ['what these flights reveal: units at ERROR (WARN) of those flown, each catalog '
+             'fault at its alarm severity from the start']
+    hidden = []
+    for fault, by in rev.items():
+        cells = [f'{sum(v == 2 for v in by[f])}({sum(v == 1 for v in by[f])})/{len(by[f])}'
+                 for f in flights]
+        lines.append(f'  {fault:24s} {FAULTS[fault].show(FAULTS[fault].demo):>14s}  '
+                     + '  '.join(f'{f}: {c}' for f, c in zip(flights, cells)))
+        if not any(2 * sum(v == 2 for v in by[f]) > len(by[f]) for f in flights):
+            hidden.append(fault)
+    if hidden:
+        lines.append(f'not revealed (an ERROR in most units on no flight): {", ".join(hidden)}'
+                     ' -- fly the built-in test before flight (servovalve-twin bit) or add a '
+                     'flight that excites them')
+    return '\n'.join(lines)
+
+
 #: the fewest healthy peaks a Gumbel law is fitted to (its scale is a sample sd: one peak
 #: gave thresholds of NaN)
 MIN_PEAKS = 2

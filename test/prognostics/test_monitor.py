@@ -155,12 +155,33 @@ def test_monitor_thresholds_command_writes_a_params_file(tmp_path, capsys):
                            (['--scenario', 'paper', '--units', '1', '--out',
                              str(tmp_path / 'b.yaml')], 'at least 2 healthy units'),
                            (['--units', '10000000', '--out', str(tmp_path / 'b.yaml')],
-                            'allowed 1 to 1000')):
+                            'allowed 1 to 1000'),
+                           (['--reveal-units', '-1', '--out', str(tmp_path / 'b.yaml')],
+                            '--reveal-units -1')):
         capsys.readouterr()
         assert main(['monitor-thresholds', *args]) == 2
         err = capsys.readouterr().err
         assert fragment in err and err.count('\n') == 1, err
     assert out.read_bytes() == before and not (tmp_path / 'b.yaml').exists()
+
+
+def test_what_a_flight_reveals_is_flown_not_assumed(capsys):
+    """A hold at rest without load reveals a null bias (the loop must correct it) and none of
+    the faults that need motion, pressure or load to show; the paper's flight reveals every
+    one, at the packaged thresholds. The command prints the table under the thresholds."""
+    from servovalve_twin.cli import main
+    from servovalve_twin.prognostics.monitor import HealthConfig, calibrated_thresholds
+    from servovalve_twin.prognostics.thresholds import format_revealed, revealed
+    cfg = HealthConfig(**calibrated_thresholds('SQ'))
+    hold = {'duration': 0.3, 'com': [[0.0, 0.0]], 'fr': [[0.0, 0.0]]}
+    rev = revealed('SQ', {'hold': hold, 'paper': 'paper'}, cfg, 2, 5)
+    assert rev['null_bias']['hold'] == [2, 2]
+    for fault in ('leakage_growth', 'static_friction', 'dynamic_friction', 'supply_loss'):
+        assert rev[fault]['hold'] == [0, 0] and rev[fault]['paper'] == [2, 2], fault
+    text = format_revealed({f: {'hold': v['hold']} for f, v in rev.items()})
+    assert 'leakage_growth                 10 x CLk  hold: 0(0)/2' in text
+    assert text.splitlines()[-1].startswith('not revealed') and 'null_bias' not in \
+        text.splitlines()[-1] and 'servovalve-twin bit' in text
 
 
 def test_monitor_run_refuses_a_run_its_ecu_would_not_match():
