@@ -92,7 +92,8 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     d = diagnose(run.signals, design, control_period=period, model=model, faults=faults,
                  window=window, free=free, bootstrap=bootstrap, pairs=pairs,
                  model_form=run.valve_model != model, onset=onset,
-                 scenario=OWN if own is not None else scenario, calibration=own)
+                 scenario=OWN if own is not None else scenario, calibration=own,
+                 sensor_bias=recorded_sensor_bias(run.provenance))
     if own is None and scenario is None and run.valve_model != model and run.provenance:
         d.warnings.append(
             f'{bag}: no calibration of this flight and design: the packaged one (other '
@@ -122,6 +123,17 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
                               'which a bag without provenance does not state; give it with '
                               '--param NAME=VALUE (and --control-period)')
     return d
+
+
+def recorded_sensor_bias(provenance) -> dict[str, float]:
+    """The offsets of the measured signals' sensors a bag's provenance records (its
+    scenario's ``sensors:``): the model's runs read with them."""
+    from ..physics.signals import MEASURED
+    if not provenance or provenance.scenario is None:
+        return {}
+    sensors = provenance.scenario_object().sensors
+    return {name: spec.bias for name, spec in (sensors.specs if sensors else ())
+            if name in MEASURED and spec.bias}
 
 
 def flight_calibration_of(run, design, model: str, free: Sequence[str], period: float,

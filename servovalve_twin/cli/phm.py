@@ -63,8 +63,9 @@ class Diagnose(Command):
                        '(default all the catalog faults a simplified model can see)')
         p.add_argument('--window', metavar='T0:T1', help='fit the rows in [T0, T1] s (default '
                        'the whole bag); T1 at most 120 s: the model runs from t = 0')
-        p.add_argument('--free', metavar='M,CJ,...', help='nuisance parameters estimated '
-                       'alongside (factors on the recorded values, in [0.5, 2])')
+        p.add_argument('--free', metavar='M,CJ,...', help='nuisance estimated alongside: '
+                       'parameters (factors on the recorded values, in [0.5, 2]) and sensor '
+                       'offsets dxj_bias, p12_bias (SI; JSON: nuisance, with intervals)')
         p.add_argument('--bootstrap', type=int, default=0, metavar='N',
                        help='the interval from N >= 20 block-bootstrap refits (default 0: the '
                             'Jacobian)')
@@ -124,7 +125,8 @@ class Diagnose(Command):
         for c in d.candidates:
             sev = ' ' + ' / '.join(FAULTS[f].show(s) for f, s in zip(c.faults, c.severities)
                                    ) if c.severities else ''
-            extra = ''.join(f' {k}x{v:.3f}' for k, v in c.free.items())
+            extra = ''.join(f' {k}={v:.3g}' if k.endswith('_bias') else f' {k}x{v:.3f}'
+                            for k, v in c.free.items())
             print(f'  {c.fault:24s}{sev:>18s}  score {c.score:10.1f}{extra}')
         return 0
 

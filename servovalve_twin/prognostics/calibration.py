@@ -540,9 +540,10 @@ def past_correction(cal: Mapping[str, Any], fault: str, g: float,
 def sensor_warnings(sensors: Any, control_period: float) -> list[str]:
     """What a run's recorded sensors (:class:`..physics.sensors.Sensors`, a bag's provenance)
     put outside this calibration's domain -- noise beyond 2 x :data:`NOISE` on a compared
-    signal, a bias or drift (a sensor fault the hypotheses do not include: it reads as an
-    actuator's), a quantisation step above the documented noise, a sample period longer than
-    the control period -- one warning line each."""
+    signal, a drift (a sensor fault the hypotheses do not include: it reads as an actuator's;
+    a bias is applied by the fit, :class:`.fitting.Problem`), a quantisation step above the
+    documented noise, a sample period longer than the control period -- one warning line
+    each."""
     from ..physics.signals import MEASURED
     out = []
     for name, spec in (sensors.specs if sensors else ()):
@@ -552,9 +553,10 @@ def sensor_warnings(sensors: Any, control_period: float) -> list[str]:
         if ratio > 2.0:
             out.append(f'the {name} sensor\'s noise is {ratio:.3g} x the documented level; the '
                        'intervals and the goodness of fit are calibrated for 0.5-2 x')
-        if spec.bias or spec.drift:
-            out.append(f'the {name} sensor has a bias or drift: a sensor fault, which no '
-                       'hypothesis includes, reads as a fault of the actuator')
+        # (a recorded bias is applied: the model's runs read with it)
+        if spec.drift:
+            out.append(f'the {name} sensor drifts: a sensor fault, which no hypothesis '
+                       'includes, reads as a fault of the actuator')
         if spec.quantisation > NOISE[name]:
             out.append(f'the {name} sensor is quantised in steps of {spec.quantisation:g}, '
                        f'coarser than the documented noise ({NOISE[name]:g})')

@@ -71,8 +71,8 @@ from ..errors import TwinError
 from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, EhaParams
 from .conformal import enough, units_needed, z_of
-from .fitting import (SIGNALS, Problem, bootstrap_intervals, effective_n, fit, jacobian_interval,
-                      ratio_interval, start_grid)
+from .fitting import (FREEABLE_BIAS, SIGNALS, Problem, bootstrap_intervals, effective_n, fit,
+                      free_interval, free_start, jacobian_interval, ratio_interval, start_grid)
 from .rules import (DETECTABLE, DIAGNOSABLE, ONSET_ENTRY, PAIR_EVIDENCE, above_floor,
                     onset_entry, sized)
 from .verdict import HEALTHY, UNEXPLAINED, Candidate, Diagnosis
@@ -101,8 +101,8 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
              bootstrap: int = 0, seed: int = 0, pairs: bool = False,
              start: float | None = None, model_form: bool = True,
              onset: bool = False, scenario: str | None = None,
-             from_rest: bool = True, calibration: Mapping[str, Any] | None = None
-             ) -> Diagnosis:
+             from_rest: bool = True, calibration: Mapping[str, Any] | None = None,
+             sensor_bias: Mapping[str, float] | None = None) -> Diagnosis:
     """Fit every hypothesis and rank them (see the module docstring).
 
     :param signals: the run's 1 ms rows (``read_bag(...).signals``, ``simulate(...).signals``)
@@ -127,10 +127,14 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     :param calibration: the model-form calibration to apply instead of the packaged one: the
         flight's own (:mod:`.flight_calibration`, with ``scenario`` its ``'own'`` entry), whose
         healthy units also set the verdict floor
+    :param sensor_bias: the sensors' known offsets by signal (``{'xj': 5e-5}``: a bag's
+        recorded sensor model), which the model's runs then read with; an unknown one is
+        freed instead (``free``: ``xj_bias``, ``dxj_bias``, ``p12_bias``)
     """
     faults = _hypotheses(faults, free, pairs)
     free = list(free)
-    problem = Problem(signals, design, model, control_period, window, start, from_rest)
+    problem = Problem(signals, design, model, control_period, window, start, from_rest,
+                      sensor_bias)
     results, singles = _fit_hypotheses(problem, faults, free, pairs)
     n = len(results[0][2])
     n_eff = effective_n(results[0][2], len(SIGNALS))
@@ -240,8 +244,14 @@ def _hypotheses(faults: Sequence[str], free: Sequence[str], pairs: bool) -> list
             raise TwinError(f'fault {f!r} acts on HD geometry a simplified model does not '
                             f'have; expected one of {list(DIAGNOSABLE)}')
     for p in free:
-        if p not in PARAM_NAMES:
-            raise TwinError(f'--free: unknown parameter {p!r}')
+        if p == 'xj_bias':
+            raise TwinError('--free xj_bias: an offset of the XJ sensor cannot be estimated '
+                            'from the run (the loop drives the reading, not the jack, to the '
+                            'command); a known one is applied from the bag\'s sensors: '
+                            f'section. Freeable offsets: {", ".join(FREEABLE_BIAS)}')
+        if p not in PARAM_NAMES and p not in FREEABLE_BIAS:
+            raise TwinError(f'--free: unknown parameter {p!r} (a model parameter, or a '
+                            f'sensor offset: {", ".join(FREEABLE_BIAS)})')
     if any(FAULTS[f].param in free for f in faults):
         raise TwinError('--free names a parameter a fault hypothesis estimates')
     faults = [f for f in DIAGNOSABLE if f in set(faults)]
@@ -269,7 +279,7 @@ def _fit_hypotheses(problem: Problem, faults: Sequence[str], free: list[str], pa
                 xa, xb = singles[a], singles[b]
                 nuis = list((xa[1:] + xb[1:]) / 2)
                 starts = [[xa[0], xb[0]] + nuis] + [
-                    [ga, gb] + [1.0] * len(free)
+                    [ga, gb] + [free_start(k) for k in free]
                     for ga in start_grid(a, PAIR_GRID) for gb in start_grid(b, PAIR_GRID)]
                 results.append(((a, b), *fit(problem, (a, b), free, starts=starts)))
     return results, singles
@@ -287,6 +297,8 @@ def _candidate(problem: Problem, hyp: tuple[str, ...], x: np.ndarray, res: np.nd
     intervals = [jacobian_interval(f, i, x, res, jac, n, n_own) or (FAULTS[f].lo, FAULTS[f].hi)
                  for i, f in enumerate(hyp)]
     freev = dict(zip(free, x[len(hyp):].tolist()))
+    free_ivs = {k: iv for j, k in enumerate(free)
+                if (iv := free_interval(k, len(hyp) + j, x, res, jac, n, n_own)) is not None}
     fitted = problem.run(problem.params(hyp, sevs, freev))
     if len(hyp) == 1:
         sev, interval = sevs[0], intervals[0]
@@ -294,7 +306,8 @@ def _candidate(problem: Problem, hyp: tuple[str, ...], x: np.ndarray, res: np.nd
         sev, interval = sevs, intervals
     else:
         sev = interval = None
-    return Candidate('+'.join(hyp) or HEALTHY, sev, interval, score, rss, freev, fitted or {})
+    return Candidate('+'.join(hyp) or HEALTHY, sev, interval, score, rss, freev, fitted or {},
+                     free_intervals=free_ivs)
 
 
 def _second_fault(problem: Problem, best: Candidate, singles: Mapping[str, np.ndarray],

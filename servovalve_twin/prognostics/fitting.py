@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Mapping, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -26,6 +26,43 @@ SIGNALS = MEASURED
 RESIDUAL_SCALE = {'xj': 2.0e-4, 'dxj': 3.0e-3, 'p12': 2.0e5}
 #: nuisance factors on the design values
 FREE_BOUNDS = (0.5, 2.0)
+#: sensor offsets a run reads with: name -> signal. An offset of XJ's sensor is inside the
+#: loop -- the ECU reads the biased XJ, so the jack settles ``b`` short of the command and the
+#: reading shows the command: exactly a run with the command less ``b`` (the ECU's law is
+#: GAP*(Com - XJ)), read ``b`` high. DXJ and P12 are read, not fed back: their offsets add to
+#: the readings only.
+SENSOR_BIAS = {'xj_bias': 'xj', 'dxj_bias': 'dxj', 'p12_bias': 'p12'}
+#: the offsets a fit can free beside the factors (``--free p12_bias,...``). Not XJ's: the loop
+#: drives the reading, not the jack, to the command and the plant is the same at every
+#: position, so the offset shows only in the first milliseconds from rest, where SQ's own
+#: mismatch against HD is as large (freed on a healthy HD unit it read -119 um, its interval
+#: [-200, -21] um excluding the truth 0: measured). A known one (a bag's ``sensors:``) is
+#: applied.
+FREEABLE_BIAS = ('dxj_bias', 'p12_bias')
+#: the offsets a fit considers [SI], +-: 20 x the documented noise of each sensor (10 um, 1 mm/s,
+#: 50 kPa), beyond which a reading is a broken sensor, not a biased one
+BIAS_BOUNDS = {'xj_bias': 2.0e-4, 'dxj_bias': 2.0e-2, 'p12_bias': 1.0e6}
+#: no sensor offset (xj, dxj, p12)
+NO_BIAS = (0.0, 0.0, 0.0)
+
+
+class Point(NamedTuple):
+    """What a model run is: the parameters and the sensors' offsets (xj, dxj, p12) [SI]."""
+
+    params: EhaParams
+    bias: tuple[float, float, float] = NO_BIAS
+
+
+def free_bounds(name: str) -> tuple[float, float]:
+    """A free nuisance's bounds: a factor's on its design value, or a sensor offset's [SI]."""
+    if name in SENSOR_BIAS:
+        return (-BIAS_BOUNDS[name], BIAS_BOUNDS[name])
+    return FREE_BOUNDS
+
+
+def free_start(name: str) -> float:
+    """A free nuisance at the design: factor 1, offset 0."""
+    return 0.0 if name in SENSOR_BIAS else 1.0
 BLOCK_ROWS = 50
 #: chi-square with one degree of freedom at 95 %
 CHI2_95 = 3.841
@@ -36,7 +73,8 @@ class Problem:
 
     def __init__(self, signals: Mapping[str, np.ndarray], design: EhaParams, model: str,
                  control_period: float, window: tuple[float, float] | None,
-                 start: float | None = None, from_rest: bool = True):
+                 start: float | None = None, from_rest: bool = True,
+                 sensor_bias: Mapping[str, float] | None = None):
         missing = [s for s in ('t', 'com', 'fr', 'psr') + SIGNALS
                    if s not in signals or not np.all(np.isfinite(signals[s]))]
         if missing:
@@ -84,27 +122,59 @@ class Problem:
         self.evaluations = 0
         self._runs: dict[tuple, dict[str, np.ndarray] | None] = {}
         self.t_start = n_start / 1000                  # run time of the model's t = 0
+        # the sensors' offsets the run is known to have (a bag's recorded sensor model), by
+        # signal; a free offset adds to them
+        known = dict(sensor_bias or {})
+        self.known_bias = tuple(float(known.get(s, 0.0)) for s in SENSOR_BIAS.values())
+        self._scenarios: dict[float, Scenario] = {0.0: self.scenario}
+
+    def _scenario_for(self, xj_bias: float) -> Scenario:
+        """The recorded inputs for a run whose XJ sensor reads ``xj_bias`` high: the command
+        less it (see :data:`SENSOR_BIAS`)."""
+        if xj_bias not in self._scenarios:
+            com = self.scenario.com
+            self._scenarios[xj_bias] = dataclasses.replace(self.scenario, com=dataclasses.replace(
+                com, points=tuple((t, v - xj_bias) for t, v in com.points)))
+        return self._scenarios[xj_bias]
+
+    def _initial_for(self, xj_bias: float) -> dict[str, float]:
+        # a recorded XJ to start from is the reading: the jack is ``xj_bias`` below it
+        if xj_bias and 'xj' in self.initial:
+            return dict(self.initial, xj=self.initial['xj'] - xj_bias)
+        return self.initial
+
+    def _readings(self, r, bias: tuple[float, float, float]) -> dict[str, np.ndarray]:
+        return {s: r[s][self.model_rows] + b if b else r[s][self.model_rows]
+                for s, b in zip(SIGNALS, bias)}
 
     def params(self, faults: Sequence[str], severities: Sequence[float],
-               free: Mapping[str, float]) -> EhaParams:
-        nominal = self.design.replace(**{k: self.design.value(k) * v for k, v in free.items()})
-        return combine(nominal, dict(zip(faults, severities)))
+               free: Mapping[str, float]) -> Point:
+        """The run of ``faults`` at ``severities`` with the ``free`` nuisance: factors on the
+        design's values, sensor offsets (:data:`SENSOR_BIAS`) beside the known ones."""
+        nominal = self.design.replace(**{k: self.design.value(k) * v for k, v in free.items()
+                                         if k not in SENSOR_BIAS})
+        bias = tuple(k + float(free.get(name, 0.0))
+                     for k, name in zip(self.known_bias, SENSOR_BIAS))
+        return Point(combine(nominal, dict(zip(faults, severities))), bias)
 
-    def run(self, params: EhaParams, events: tuple = ()) -> dict[str, np.ndarray] | None:
-        """The model's window rows for ``params`` (None if the model failed); each parameter
-        set runs once -- the fitted signals of a hypothesis are those of its last solver
-        evaluations, not a run more. ``events``: faults scheduled during the run, ``(at [s,
-        run time], fault, severity)`` each (an onset)."""
-        key = (params, events)
+    def run(self, point: Point | EhaParams, events: tuple = ()
+            ) -> dict[str, np.ndarray] | None:
+        """The model's window rows, as the sensors read them, for ``point`` (None if the
+        model failed); each point runs once -- the fitted signals of a hypothesis are those
+        of its last solver evaluations, not a run more. ``events``: faults scheduled during
+        the run, ``(at [s, run time], fault, severity)`` each (an onset)."""
+        params, bias = point if isinstance(point, Point) else (point, self.known_bias)
+        key = (params, events, bias)
         if key not in self._runs:
             self.evaluations += 1
-            scn = self.scenario if not events else dataclasses.replace(
-                self.scenario, faults=tuple(dict(at=at - self.t_start, fault=f, severity=sev)
-                                            for at, f, sev in events))
+            scn = self._scenario_for(bias[0])
+            if events:
+                scn = dataclasses.replace(scn, faults=tuple(
+                    dict(at=at - self.t_start, fault=f, severity=sev) for at, f, sev in events))
             try:
                 r = simulate(self.model, scn, params=params, ecu_period=self.control_period,
-                             initial=self.initial)
-                self._runs[key] = {s: r[s][self.model_rows] for s in SIGNALS}
+                             initial=self._initial_for(bias[0]))
+                self._runs[key] = self._readings(r, bias)
             except ModelError:
                 self._runs[key] = None
         return self._runs[key]
@@ -115,21 +185,28 @@ class Problem:
         entry's ``fleet_pays``), else one by one: :meth:`run` then finds each, the rows it
         would have run alone (bit for bit)."""
         from ..physics.valves import get_valve_model
-        todo = list(dict.fromkeys(k for k in runs if k not in self._runs))
+        points = [(p if isinstance(p, Point) else Point(p, self.known_bias), ev)
+                  for p, ev in runs]
+        todo = list(dict.fromkeys((p, ev, b) for (p, b), ev in points
+                                  if (p, ev, b) not in self._runs))
         if len(todo) < 2 or not get_valve_model(self.model).fleet_pays:
-            for params, events in todo:
-                self.run(params, events)
+            for params, events, bias in todo:
+                self.run(Point(params, bias), events)
             return
         from ..physics.fleet import simulate_many
         self.evaluations += len(todo)
-        faults = [tuple(dict(at=at - self.t_start, fault=f, severity=sev)
-                        for at, f, sev in events) for _, events in todo]
-        got = simulate_many(self.model, self.scenario, [p for p, _ in todo],
-                            ecu_period=self.control_period, initial=self.initial,
-                            faults=faults, failed='none')
-        for key, r in zip(todo, got):
-            self._runs[key] = None if r is None else {s: r[s][self.model_rows]
-                                                      for s in SIGNALS}
+        # one fleet per XJ offset (a command of its own); a finite difference in it is one
+        # point apart
+        for xj_bias in dict.fromkeys(k[2][0] for k in todo):
+            group = [k for k in todo if k[2][0] == xj_bias]
+            faults = [tuple(dict(at=at - self.t_start, fault=f, severity=sev)
+                            for at, f, sev in events) for _, events, _ in group]
+            got = simulate_many(self.model, self._scenario_for(xj_bias), [p for p, _, _ in group],
+                                ecu_period=self.control_period,
+                                initial=self._initial_for(xj_bias), faults=faults,
+                                failed='none')
+            for key, r in zip(group, got):
+                self._runs[key] = None if r is None else self._readings(r, key[2])
 
     def fleet_map(self, to_run):
         """A map for scipy's finite differences (``least_squares(workers=...)``): the points
@@ -181,8 +258,8 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
     from scipy.optimize import least_squares
     specs = [FAULTS[f] for f in faults]
     nf = len(specs)
-    lo = [f.lo for f in specs] + [FREE_BOUNDS[0]] * len(free)
-    hi = [f.hi for f in specs] + [FREE_BOUNDS[1]] * len(free)
+    lo = [f.lo for f in specs] + [free_bounds(k)[0] for k in free]
+    hi = [f.hi for f in specs] + [free_bounds(k)[1] for k in free]
 
     def to_run(x):
         fr = {k: float(v) for k, v in zip(free, x[nf:])}
@@ -198,7 +275,7 @@ def fit(problem: Problem, faults: Sequence[str], free: Sequence[str],
     if not lo:                                   # healthy, nothing free: no fit to make
         return np.zeros(0), fun(np.zeros(0)), np.zeros((len(problem.rows) * 3, 0))
     if starts is None:
-        design = [1.0] * len(free)
+        design = [free_start(k) for k in free]
         starts = [[g] + design for g in start_grid(faults[0])] if nf == 1 else [
             [FAULTS[f].healthy for f in faults] + design]
     starts = [np.clip(np.asarray(x, dtype=float), lo, hi) for x in starts]
@@ -289,24 +366,39 @@ def _flat_stretch_minimum(problem, fault, fun, to_run, starts, costs, x, rss):
     return tries[i] if tcost[i] < rss else None
 
 
-def jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
-    """95 % interval of the severity x[i] of ``fault`` from the fit's Jacobian; None where the
-    residuals do not move with it at the fit (a flat stretch: static friction beyond the
-    break-away a run reaches), where the Jacobian says nothing."""
-    spec = FAULTS[fault]
+def jacobian_half(i, x, res, jac, n, n_eff) -> float | None:
+    """The half-width of the 95 % interval of coordinate ``x[i]`` from the fit's Jacobian
+    (the residual variance and correlation of the fit); None where the residuals do not move
+    with it at the fit (a flat stretch: static friction beyond the break-away a run
+    reaches), where the Jacobian says nothing; inf where it cannot be inverted."""
     if not np.any(jac[:, i]):
         return None
-    k = len(x)
-    s2 = float(np.dot(res, res)) / max(n - k, 1)
-    jtj = jac.T @ jac
+    s2 = float(np.dot(res, res)) / max(n - len(x), 1)
     try:
-        cov = np.linalg.pinv(jtj) * s2 * (n / n_eff)
+        cov = np.linalg.pinv(jac.T @ jac) * s2 * (n / n_eff)
         half = 1.96 * math.sqrt(max(float(cov[i, i]), 0.0))
     except np.linalg.LinAlgError:
         half = math.inf
-    if not math.isfinite(half):
-        return (spec.lo, spec.hi)
+    return half if math.isfinite(half) else math.inf
+
+
+def jacobian_interval(fault, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
+    """95 % interval of the severity x[i] of ``fault`` from the fit's Jacobian
+    (:func:`jacobian_half`), within the catalog's range; None where it says nothing."""
+    spec = FAULTS[fault]
+    half = jacobian_half(i, x, res, jac, n, n_eff)
+    if half is None:
+        return None
     return (max(spec.lo, float(x[i]) - half), min(spec.hi, float(x[i]) + half))
+
+
+def free_interval(name: str, i, x, res, jac, n, n_eff) -> tuple[float, float] | None:
+    """The 95 % interval of free nuisance ``name`` at ``x[i]``, within its bounds."""
+    half = jacobian_half(i, x, res, jac, n, n_eff)
+    if half is None:
+        return None
+    lo, hi = free_bounds(name)
+    return (max(lo, float(x[i]) - half), min(hi, float(x[i]) + half))
 
 
 def ratio_interval(problem: Problem, faults: Sequence[str], i: int, x: np.ndarray,
@@ -378,5 +470,8 @@ def bootstrap_intervals(problem: Problem, best, free: list[str], n: int,
     return [(float(a), float(b)) for a, b in zip(lo, hi)]
 
 
-__all__ = ['Problem', 'fit', 'effective_n', 'start_grid', 'jacobian_interval', 'ratio_interval',
+__all__ = ['Problem', 'Point', 'fit', 'effective_n', 'start_grid', 'jacobian_interval',
+           'free_interval', 'free_bounds', 'free_start', 'SENSOR_BIAS', 'FREEABLE_BIAS',
+           'BIAS_BOUNDS',
+           'ratio_interval',
            'bootstrap_intervals', 'RESIDUAL_SCALE', 'FREE_BOUNDS', 'CHI2_95', 'SIGNALS']

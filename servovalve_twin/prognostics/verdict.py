@@ -32,6 +32,9 @@ class Candidate:
     fitted: dict[str, np.ndarray]
     #: the fit's own severity and 95 % interval, before a model-form correction replaced them
     raw: tuple[Any, Any] | None = None
+    #: each free nuisance's 95 % interval from the fit's Jacobian (a factor, or a sensor
+    #: offset in SI), by name
+    free_intervals: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     @property
     def faults(self) -> tuple[str, ...]:
@@ -137,6 +140,9 @@ class Diagnosis:
                     identifiable=self.identifiable, bounds=[b for b in self.bounds if b],
                     also_consistent_with=self.also_consistent_with,
                     onset=None if unexplained else self.onset,
+                    nuisance={k: dict(value=v, interval=list(b.free_intervals[k]))
+                              if k in b.free_intervals else dict(value=v, interval=None)
+                              for k, v in b.free.items()},
                     candidates=[c.to_json() for c in self.candidates], model=self.model,
                     window=list(self.window), calibration=self._calibration_json(),
                     warnings=list(self.warnings))

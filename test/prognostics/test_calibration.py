@@ -507,16 +507,17 @@ def test_a_bag_is_matched_to_its_calibration_scenario_by_its_inputs():
 def test_sensors_outside_the_calibrated_domain_are_named():
     """Each departure named once, on the compared signals only: XJ noise 5 x the documented
     10 um (the domain is 0.5-2 x), a DXJ bias, a P12 quantised in 0.2 MPa steps (coarser than
-    its 50 kPa noise) sampled every 2 ms; XS (not compared) and in-domain noise say nothing."""
+    its 50 kPa noise) sampled every 2 ms; XS (not compared), in-domain noise and a bias (which
+    the fit applies) say nothing."""
     from servovalve_twin.physics.sensors import sensors_from_dict
-    sensors = sensors_from_dict({'xj': {'noise': 5.0e-5}, 'dxj': {'bias': 1.0e-3},
+    sensors = sensors_from_dict({'xj': {'noise': 5.0e-5, 'bias': 1e-5}, 'dxj': {'drift': 1e-3},
                                  'p12': {'noise': 5.0e4, 'quantisation': 2.0e5,
                                          'period': 0.002},
                                  'xs': {'noise': 1.0, 'bias': 1.0}})
     got = calibration.sensor_warnings(sensors, 1e-3)
     assert len(got) == 4, got
     assert 'the xj sensor\'s noise is 5 x the documented level' in got[0]
-    assert got[1].startswith('the dxj sensor has a bias or drift')
+    assert got[1].startswith('the dxj sensor drifts')
     assert 'quantised in steps of 200000' in got[2]
     assert 'samples every 0.002 s' in got[3]
     ideal = sensors_from_dict({'xj': {'noise': 2.0e-5}, 'p12': {'noise': 2.5e4}})

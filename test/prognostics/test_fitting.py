@@ -71,3 +71,28 @@ def test_a_fit_that_stalls_on_a_rough_cost_is_solved_again_to_its_valley():
     grid = min(cost(s, cj) for s in np.linspace(1.6, 2.6, 11) for cj in np.linspace(0.6, 1.0, 9))
     assert rss <= 1.005 * grid and rss < 2500
     assert x[0] > 2.0 and x[1] < 0.9
+
+
+def test_a_known_xj_offset_runs_as_the_twin_s_biased_sensor_in_the_loop():
+    """The XJ sensor reading 80 um high inside the loop (the twin's own sensor model, no
+    noise) against the fit's run of the command less 80 um, read 80 um high: the same
+    readings. A P12 offset adds to the reading only."""
+    from servovalve_twin.config import load_scenario
+    from servovalve_twin.physics.params import DEFAULTS
+    from servovalve_twin.prognostics.fitting import Problem
+    from servovalve_twin.runs import simulate
+    scn = load_scenario('paper').to_dict()
+    sensed = simulate('SQ', dict(scn, sensors={'xj': {'bias': 8e-5}, 'p12': {'bias': 2e5}}),
+                      ecu_period=1e-3).signals
+    ideal = simulate('SQ', scn, ecu_period=1e-3).signals
+    # the jack settles 80 um short of the command: the loop is fed the reading
+    assert abs(float(sensed['xj'][-1] - ideal['xj'][-1])) < 1e-6
+    problem = Problem(ideal, DEFAULTS, 'SQ', 1e-3, None,
+                      sensor_bias={'xj': 8e-5, 'p12': 2e5})
+    run = problem.run(problem.params((), [], {}))
+    for s in ('xj', 'dxj', 'p12'):
+        np.testing.assert_allclose(run[s], sensed[s][problem.rows], rtol=1e-9,
+                                   atol=1e-12 * float(np.max(np.abs(sensed[s]))))
+    free = problem.run(problem.params((), [], {'p12_bias': 1e5}))
+    np.testing.assert_allclose(free['p12'] - run['p12'], 1e5)
+    np.testing.assert_array_equal(free['xj'], run['xj'])
