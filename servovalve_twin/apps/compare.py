@@ -464,4 +464,8 @@ def parse_tolerances(items: list[str]) -> dict[str, float]:
             out[name] = float(value)
         except ValueError:
             raise TwinError(f'--tolerance {item!r}: {value!r} is not a number') from None
+        # (nan never trips, a negative one always does)
+        if not 0.0 <= out[name] < math.inf:
+            raise TwinError(f'--tolerance {item!r}: the largest error allowed must be a '
+                            'finite number >= 0')
     return out

@@ -18,7 +18,12 @@ from typing import Any, Mapping
 import yaml
 
 from ..errors import BagError, TwinError
+from ..physics.simulate import MAX_PERIOD
 from . import safe_load
+
+#: the shortest control period a provenance record may state [s]: a microsecond, below any
+#: servo loop (a crafted 1e-300 s stepped a replayed algorithm at that period)
+MIN_PERIOD = 1e-6
 
 #: the MCAP metadata record's name, and the prefix of its keys in ``custom_data``
 PROVENANCE = 'servovalve_twin'
@@ -69,9 +74,9 @@ class Provenance:
                 cp = float(rec['control_period'])
             except ValueError:
                 cp = math.nan
-            if not (math.isfinite(cp) and cp > 0):
-                raise BagError(f'{bad} has control_period {rec["control_period"]!r}; expected a '
-                               'positive number of seconds')
+            if not (math.isfinite(cp) and MIN_PERIOD <= cp <= MAX_PERIOD):
+                raise BagError(f'{bad} has control_period {rec["control_period"]!r}; expected '
+                               f'{MIN_PERIOD:g} to {MAX_PERIOD:g} s')
         params = _yaml_map(rec.get('params'), f'{bad} "params"')
         for k, v in params.items():
             if not (v is None or isinstance(v, (int, float, bool))):

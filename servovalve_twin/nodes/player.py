@@ -129,6 +129,14 @@ class Player(Node):
         self.pubs = {}
         wanted = set(absolute_topic(t) for t in options.topics)
         unwanted = set(absolute_topic(t) for t in options.exclude_topics)
+        # (a topic the bag lacks played nothing, rc 0: a typo looked like a quiet bag)
+        missing = sorted(wanted - set(bag.topics))
+        if missing:
+            raise TwinError(f'topics {", ".join(missing)}: not in the bag, which has '
+                            f'{", ".join(sorted(bag.topics))}')
+        if options.start_offset * 1e9 >= bag.end_ns - bag.start_ns and bag.end_ns > bag.start_ns:
+            raise TwinError(f'start_offset {options.start_offset:g} s lies at or past the '
+                            f'bag\'s end ({(bag.end_ns - bag.start_ns) * 1e-9:g} s long)')
         for name_, info in sorted(bag.topics.items()):
             if wanted and name_ not in wanted or name_ in unwanted:
                 continue

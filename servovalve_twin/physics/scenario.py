@@ -46,6 +46,19 @@ _MAX_DURATION = 3600.0
 MAX_BREAKPOINTS = 100_000
 #: the supply-return pressure the models accept: PSRN's upper bound
 _PSR_MAX = 1.0e8
+#: the values an input may take: a command within +-1 m (strokes are tens of mm), a load
+#: within +-10 MN (a jack of 1.2e-3 m^2 at 28 MPa pushes 34 kN), a supply within [0, PSRN's
+#: bound]. Beyond, a run is arithmetic on absurd numbers (a command of 1e308 m ran, rc 0)
+SIGNAL_RANGE = {'com': (-1.0, 1.0), 'fr': (-1.0e7, 1.0e7), 'psr': (0.0, _PSR_MAX)}
+
+
+def _check_range(signal: str, where: str, lo: float, hi: float) -> None:
+    """Refuse an input whose values span [lo, hi] beyond :data:`SIGNAL_RANGE`."""
+    a, b = SIGNAL_RANGE[signal]
+    if not (a <= lo and hi <= b):
+        bad = lo if lo < a else hi
+        raise ScenarioError(f'{where}: {signal.upper()} = {bad:g} {SIGNAL_UNITS[signal]} is '
+                            f'outside [{a:g}, {b:g}] {SIGNAL_UNITS[signal]}')
 
 
 def _ns(t: float) -> int:
@@ -315,10 +328,7 @@ def _profile(raw: Any, signal: str, duration: float) -> Profile:
                      for k in ('offset', 'amplitude', 'frequency', 'phase', 'start'))
         if vals[2] < 0:
             raise ScenarioError(f'{where}.frequency must be >= 0 Hz, got {vals[2]}')
-        if signal == 'psr' and not (0.0 <= vals[0] - abs(vals[1])
-                                    and vals[0] + abs(vals[1]) <= _PSR_MAX):
-            raise ScenarioError(f'{where}: PSR swings over [{vals[0] - abs(vals[1]):g}, '
-                                f'{vals[0] + abs(vals[1]):g}] Pa, outside [0, {_PSR_MAX:g}] Pa')
+        _check_range(signal, where, vals[0] - abs(vals[1]), vals[0] + abs(vals[1]))
         return Profile('sine', sine=vals)
     if not isinstance(raw, (list, tuple)) or not raw:
         raise ScenarioError(f'{where}: expected a non-empty list of [t, value] breakpoints, '
@@ -344,10 +354,8 @@ def _profile(raw: Any, signal: str, duration: float) -> Profile:
     if times[-1] > duration:
         raise ScenarioError(f'{where}: breakpoint at t = {times[-1]} s lies after the duration '
                             f'{duration} s')
-    if signal == 'psr':
-        bad = [v for _, v in points if not 0.0 <= v <= _PSR_MAX]
-        if bad:
-            raise ScenarioError(f'{where}: PSR = {bad[0]:g} Pa is outside [0, {_PSR_MAX:g}] Pa')
+    values = [v for _, v in points]
+    _check_range(signal, where, min(values), max(values))
     return Profile(kind, tuple(points))
 
 

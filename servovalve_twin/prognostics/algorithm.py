@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import math
 import threading
 import time
 from typing import Any, Callable, Mapping
@@ -133,10 +134,13 @@ def _coerce(title: str, name: str, value: Any, default: Any) -> Any:
                 raise ValueError(value)
             return int(float(value))
         if kind is float:
+            # (nan passes every comparison as False: a threshold of nan never trips)
+            if not math.isfinite(float(value)):
+                raise ValueError(value)
             return float(value)
         return kind(value) if default is not None else value
-    except (TypeError, ValueError):
-        raise AlgorithmError(f'algorithm {title}: parameter {name} must be a '
+    except (TypeError, ValueError, OverflowError):
+        raise AlgorithmError(f'algorithm {title}: parameter {name} must be a finite '
                              f'{kind.__name__}, got {value!r}') from None
 
 

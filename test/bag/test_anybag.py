@@ -223,6 +223,8 @@ def _crafted(tmp_path, name, edit_meta=None, record=None):
 def _bad_records():
     _, good, _ = _reference()
     yield 'cp', dict(good, control_period='fast')
+    yield 'cp-tiny', dict(good, control_period='1e-300')
+    yield 'cp-long', dict(good, control_period='5')
     yield 'params-list', dict(good, params='- 1\n- 2\n')
     yield 'params-text', dict(good, params='M: heavy\n')
     yield 'bad-yaml', dict(good, scenario='{unclosed: [')

@@ -270,12 +270,16 @@ def test_play_values_never_reach_rcl_as_its_own_arguments(tmp_path):
     """rcl read the whole command line: a --remap value became a (deprecated) global remap
     rule of rcl's, a --topics value could rename the node. Only the player uses them now."""
     r = subprocess.run([sys.executable, '-m', 'servovalve_twin.cli', 'play', '@paper_HD', '-r',
-                        '1000', '--remap', '/xj:=/xj_renamed', '--topics', '/xj', '/com',
-                        '__node:=renamed'], capture_output=True, text=True, timeout=300,
-                       cwd=tmp_path)
+                        '1000', '--remap', '/xj:=/xj_renamed', '--topics', '/xj', '/com'],
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
     print(r.stdout, r.stderr)
     assert r.returncode == 0 and '[rcl]' not in r.stderr and 'deprecated' not in r.stderr
     assert 'play: done: 2002 messages' in r.stdout
+    # a rule of rcl's given as a topic is the player's topic (one the bag lacks), not rcl's
+    r = subprocess.run([sys.executable, '-m', 'servovalve_twin.cli', 'play', '@paper_HD',
+                        '--topics', '/xj', '__node:=renamed'], capture_output=True, text=True,
+                       timeout=300, cwd=tmp_path)
+    assert r.returncode == 2 and 'topics /__node:=renamed: not in the bag' in r.stderr
 
 
 SLOW_SUBSCRIBER = r'''
