@@ -131,6 +131,10 @@ BAD_COMMANDS = [
     _row(['characteristic', '--valve-model', 'C2', '--qj', '0', '--out', 'no_such_dir/c.csv'],
          'No such file or directory: no_such_dir/c.csv'),
     _row(['run', '--valve-model', 'C2', '--bag', 'lnk/b'], "'lnk' is a symbolic link", _ROS),
+    # (the files <name>_<n>.mcap would pass the file system's 255 bytes: an empty directory
+    # was left)
+    _row(['run', '--valve-model', 'C2', '--bag', 'b' * 250], 'is too long: its files are named',
+         _ROS),
     _row(['run', '--valve-model', 'C2', '--bag', '.', '--overwrite'],
          'is the working directory or one of its parents', _ROS),
     _row(['run', '--valve-model', 'C2', '--bag', 'notabag', '--overwrite'],

@@ -92,6 +92,11 @@ def _tagged(stream, i: int):
         yield t, i, n, topic, data
 
 
+#: the bags opened in this process whose storage keeps no checksums (sqlite3): what was read
+#: from them cannot be verified, which the command's report says (:func:`..cli.main`)
+UNVERIFIED: list[str] = []
+
+
 def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
     """Open a rosbag2 bag directory (``metadata.yaml`` and its storage files) or a bare storage
     file; every failure is one :class:`BagError` line. ``require_metadata``: a directory
@@ -127,6 +132,8 @@ def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
     else:
         raise BagError(f'no bag at {str(p)!r}: not a directory or a storage file ('
                        + ', '.join(s.suffix for s in STORAGES.values()) + ')')
+    if storage == 'sqlite3' and str(p) not in UNVERIFIED:
+        UNVERIFIED.append(str(p))
     topics: dict[str, TopicInfo] = {}
     start, end, count = None, None, 0
     for f in files:

@@ -83,7 +83,7 @@ def float64_series(bag: AnyBag, topics=None, counts: dict[str, int] | None = Non
     out = {k: s.arrays() for k, s in series.items() if s.n}
     period = bag.provenance.control_period
     if period:
-        check_ticks(bag.path, out, int(round(period * 1e9)))
+        check_ticks(bag.path, out, int(round(period * 1e9)), bag.storage)
     return out
 
 
@@ -125,8 +125,8 @@ class _Series:
 _EVERY_TICK = frozenset(CSV_COLUMNS[1:])
 
 
-def check_ticks(path: Path, series: dict[str, tuple[np.ndarray, np.ndarray]], period_ns: int
-                ) -> None:
+def check_ticks(path: Path, series: dict[str, tuple[np.ndarray, np.ndarray]], period_ns: int,
+                storage: str = 'mcap') -> None:
     """The twin publishes its Float64 topics at control-period ticks, the plant's signals at
     every one (the port pressures only while a model with ports is in force; an algorithm's
     outputs at its own ticks): a message off that grid, twice at one tick or, for a signal,
@@ -142,9 +142,14 @@ def check_ticks(path: Path, series: dict[str, tuple[np.ndarray, np.ndarray]], pe
         off = t[0] % period_ns != 0
         if off or bad.size:
             at = t[0] if off else t[bad[0] + 1]
+            # (an MCAP file's checksums held: its messages are as written, so the record
+            # that states the period is the one to doubt -- not sqlite3, which was blamed)
+            why = ('a damaged or edited file; sqlite3 keeps no checksum' if storage == 'sqlite3'
+                   else 'its checksums hold: an edited provenance record, or a recorder that '
+                        'is not the twin')
             raise BagError(f'bag {str(path)!r} is corrupt: {topic} is not one message per '
-                           f'control period ({period_ns * 1e-6:g} ms) at {at * 1e-9:.6f} s (a '
-                           'damaged or edited file; sqlite3 keeps no checksum)')
+                           f'control period ({period_ns * 1e-6:g} ms) at {at * 1e-9:.6f} s '
+                           f'({why})')
 
 
 def read_bag(path: str | Path, *, require_metadata: bool = True) -> BagRun:
@@ -201,7 +206,7 @@ def iter_float64_blocks(bag: AnyBag, topics=None, *, counts: dict[str, int] | No
                 # the tick check across blocks: the previous block's last tick leads this one
                 head = [carry[topic]] if topic in carry else []
                 check_ticks(p, {topic: (np.concatenate([head, t]).astype(np.int64), None)},
-                            period_ns)
+                            period_ns, bag.storage)
             if k:
                 carry[topic] = int(t[-1])
             series[topic] = (t, v)          # every topic, empty ones too (a table's columns)

@@ -112,6 +112,18 @@ def _yaml(data: Any) -> str:
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=False)
 
 
+
+def _name_max(directory: Path) -> int:
+    """The longest file name the file system of ``directory`` (or its nearest existing
+    parent) takes, in bytes."""
+    for d in (directory, *directory.parents):
+        try:
+            return os.pathconf(d, 'PC_NAME_MAX')
+        except (OSError, ValueError):
+            continue
+    return 255
+
+
 class BagWriter:
     """Writes one bag directory; topics are added before their first message.
 
@@ -140,6 +152,13 @@ class BagWriter:
         if self.dir.resolve() in (here, *here.parents) or self.dir.name in ('', '.', '..'):
             raise BagError(f'bag directory {str(self.dir)!r} is the working directory or one '
                            'of its parents: give the bag a directory of its own')
+        # the storage files are <dir>_<n>.mcap: a name the file system refuses for them left
+        # an empty directory behind (a 250-character --bag)
+        longest = len(os.fsencode(file_name or f'{self.dir.name}_999999.mcap'))
+        if longest > _name_max(self.dir):
+            raise BagError(f'bag directory name {self.dir.name[:40]!r}... is too long: its '
+                           f'files are named <name>_<n>.mcap, at most {_name_max(self.dir)} '
+                           'bytes here; give a shorter name')
         self._created_dir = not self.dir.exists()
         if not self._created_dir and any(self.dir.iterdir()):
             if not overwrite:

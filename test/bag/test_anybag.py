@@ -400,3 +400,32 @@ def test_a_damaged_sqlite3_bag_is_refused_never_read_silently(layouts, tmp_path,
         assert main(args) == 2
         err = capsys.readouterr().err
         assert fragment in err and err.count('\n') == 1, err
+
+
+def test_an_mcap_bag_off_its_recorded_period_blames_the_record_not_sqlite3(tmp_path, capsys):
+    """An MCAP bag whose provenance states a period its messages do not keep: its checksums
+    hold, so the line names an edited record (it named sqlite3's missing checksums)."""
+    _, good, _ = _reference()
+    d = _crafted(tmp_path, 'cp-edited', record=dict(good, control_period='0.0007'))
+    assert main(['compare', '@paper_HD', str(d)]) == 2
+    err = capsys.readouterr().err
+    assert 'not one message per control period (0.7 ms)' in err and \
+        'an edited provenance record' in err and 'sqlite3' not in err, err
+
+
+def test_every_command_on_a_sqlite3_bag_says_it_cannot_be_verified(layouts, tmp_path, capsys):
+    """sqlite3 keeps no checksums: a command that read one says so in one note after its
+    report; on MCAP (checksums verified) it says nothing."""
+    bags, _, _ = layouts
+    for storage, said in (('sqlite3', True), ('mcap', False)):
+        bag = str(bags[storage][0])
+        for argv in (['compare', '@paper_HD', bag],
+                     ['evaluate', bag, '--algorithm',
+                      'servovalve_twin.prognostics.monitor:MonitorAlgorithm'],
+                     ['diagnose', bag, '--faults', 'leakage_growth', '--json',
+                      str(tmp_path / 'd.json')]):
+            assert main(argv) == 0, argv
+            err = capsys.readouterr().err
+            note = f'note: {bag} is a sqlite3 bag, which keeps no checksums: what was read ' \
+                   'from it cannot be verified'
+            assert (note in err) == said and err.count(note) <= 1, (argv, err)
