@@ -82,6 +82,10 @@ class Reindex(Command):
             if rep['dropped_messages']:
                 print(f'{args.bag}: {rep["file"]}: dropped {rep["dropped_messages"]} messages '
                       'of channels it does not describe', file=sys.stderr)
+            if rep.get('indexed_missing'):
+                print(f'{args.bag}: {rep["file"]}: its own index counts {rep["indexed"]} '
+                      f'messages; {rep["indexed_missing"]} of them were not found (lost in '
+                      'the damage)', file=sys.stderr)
             if rep.get('original_kept_as'):
                 print(f'{args.bag}: {rep["file"]}: the damaged original is kept as '
                       f'{rep["original_kept_as"]}', file=sys.stderr)
