@@ -67,6 +67,23 @@ def console_script(name: str) -> str:
     return found
 
 
+def answer(executor, send, timeout_s: float = 120.0, resend_s: float = 10.0):
+    """The result of a service request ``send()`` (a function returning its future), sent
+    again every ``resend_s`` until one is answered (None after ``timeout_s``): a request made
+    just as the service is discovered can be lost before the server's reply writer has
+    matched the client (Fast DDS), and then is never answered -- on a busy machine a
+    parameter request waited its whole minute."""
+    import time
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        fut = send()
+        executor.spin_until_future_complete(fut, timeout_sec=min(resend_s, max(
+            0.0, deadline - time.monotonic())))
+        if fut.done():
+            return fut.result()
+    return None
+
+
 def pytest_collection_modifyitems(config, items):
     """The tiers: a test that may start rclpy nodes -- it takes ``ros_context``, ``replay`` or
     ``twin_bag``, lives in test/ros/, or its module uses rclpy, the twin, the ``run``/``play``

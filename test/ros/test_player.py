@@ -20,7 +20,7 @@ from bagmaker import write_bag
 from servovalve_twin.bag.anybag import open_any_bag
 from servovalve_twin.errors import BagError
 from servovalve_twin.nodes.player import Player, PlayOptions
-from conftest import ROOT
+from conftest import ROOT, answer
 
 LAYOUTS = [
     dict(storage='mcap', version=9),
@@ -240,11 +240,9 @@ def test_the_player_executable_holds_its_options_as_parameters(ros_context, tmp_
     names = ['bag', 'rate', 'topics', 'exclude_topics', 'start_paused', 'clock', 'remap']
     try:
         assert client.wait_for_services(timeout_sec=120)
-        fut = client.get_parameters(names)
-        ex.spin_until_future_complete(fut, timeout_sec=60)
         got = {n: Parameter.from_parameter_msg(
             __import__('rcl_interfaces.msg', fromlist=['Parameter']).Parameter(name=n, value=v))
-            for n, v in zip(names, fut.result().values)}
+            for n, v in zip(names, answer(ex, lambda: client.get_parameters(names)).values)}
         assert got['bag'].value == str(tmp_path / 'b')
         assert got['rate'].type_ == Parameter.Type.DOUBLE and got['rate'].value == 2.0
         assert got['topics'].type_ == Parameter.Type.STRING_ARRAY
@@ -253,9 +251,8 @@ def test_the_player_executable_holds_its_options_as_parameters(ros_context, tmp_
         assert list(got['exclude_topics'].value) == []
         assert got['start_paused'].value is True and got['clock'].value == 0.0
         for p in (Parameter('rate', value=4.0), Parameter('topics', value=['/fast'])):
-            fut = client.set_parameters([p])
-            ex.spin_until_future_complete(fut, timeout_sec=60)
-            assert not fut.result().results[0].successful, p.name
+            assert not answer(ex, lambda: client.set_parameters([p])).results[0].successful, \
+                p.name
     finally:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
