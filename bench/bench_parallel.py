@@ -31,13 +31,13 @@ def flight(duration: float) -> dict:
             'psr': [[0.0, 2.0e7]]}
 
 
-def timed(label: str, **kw) -> dict:
+def timed(label: str, faults: list, **kw) -> dict:
     with tempfile.TemporaryDirectory() as cache:
         os.environ[fc.CACHE_ENV] = cache
         t = time.perf_counter()
-        cal, _ = fc.calibrate_flight(FLIGHT, DEFAULTS, units=UNITS, **kw)
+        fc.calibrate_flight(FLIGHT, DEFAULTS, units=UNITS, faults=faults, **kw)
         wall = time.perf_counter() - t
-    n = len(fc.jobs(FAULTS, UNITS, 0))
+    n = len(fc.jobs(faults, UNITS, 0))
     row = dict(config=label, units=n, wall_s=round(wall, 2), units_per_s=round(n / wall, 3))
     print(f'{label:24s} {n} units in {wall:7.2f} s: {n / wall:6.3f} units/s', flush=True)
     return row
