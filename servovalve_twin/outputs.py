@@ -23,6 +23,35 @@ from typing import IO, Iterator
 from .errors import TwinError
 
 
+#: the errors of a file system that has no room for what is written
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def write_failed(target: str | Path, exc: OSError, kept: str = 'nothing of it was written'
+                 ) -> TwinError:
+    """The one line of a write to ``target`` that failed: "no space left" where the disk
+    (or a quota, or the file size limit) is full, else the system's reason; never the name of
+    a temporary file."""
+    why = ('no space left on its device' if exc.errno == errno.ENOSPC else
+           'the disk quota is exceeded' if exc.errno == errno.EDQUOT else
+           'the file size limit is reached' if exc.errno == errno.EFBIG else
+           exc.strerror or str(exc))
+    return TwinError(f'{target}: {why} ({kept})')
+
+
+def short_write(target: str | Path, exc: OSError) -> TwinError:
+    """:func:`write_failed` of a write that reported no errno (numpy's ``tofile``: "1001
+    requested and 0 written"): a full disk where the target's file system has no room left."""
+    if not exc.errno:
+        try:
+            st = os.statvfs(Path(target).parent)
+            if st.f_bavail * st.f_frsize < (1 << 20):
+                exc = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        except OSError:
+            pass
+    return write_failed(target, exc)
+
+
 def new_temporary(directory: Path, prefix: str, suffix: str) -> tuple[int, Path]:
     """A new file in ``directory`` under a random name, opened for writing: ``(fd, path)``.
     Created exclusively (never an existing file or a planted link), with the permissions a
@@ -78,10 +107,16 @@ def output_path(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write to; renamed onto ``path`` when the block
     ends without an error, removed otherwise."""
     path = Path(path)
+    existed = path.exists() or path.is_symlink()
     tmp = _temporary(path)
     try:
         yield tmp
         os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        # (the error named our temporary, .run.a1b2c3.part.csv, not the user's file)
+        raise write_failed(path, exc, f'{path.name} is as it was' if existed else
+                           'nothing of it was written') from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -39,7 +39,40 @@ def test_a_full_disk_leaves_no_partial_csv(tmp_path):
                        text=True, timeout=300, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     print(r.stderr)
     assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'Traceback' not in r.stderr
+    assert 'run.csv: the file size limit is reached (nothing of it was written)' in r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+_MONITOR = 'servovalve_twin.prognostics.monitor:MonitorAlgorithm'
+
+
+@pytest.mark.parametrize('argv, left', [
+    (['evaluate', '@paper_HD', '--algorithm', _MONITOR, '--json', 'e.json'], []),
+    (['sweep', '--fault', 'leakage_growth:5', '--nominal', '1', '--traces', '--workers', '1',
+      '--out', 'sw'], []),
+    pytest.param(['report', '--out-dir', 'rep'], [], marks=pytest.mark.slow),
+    pytest.param(['run', '--valve-model', 'C2', '--bag', 'b'], ['b', 'b/b_0.mcap'],
+                 marks=pytest.mark.ros),
+    pytest.param(['replay', '@paper_HD', '--valve-model', 'C2', '--out', 'r'],
+                 ['r', 'r/r_0.mcap'], marks=pytest.mark.ros),
+], ids=['evaluate', 'sweep', 'report', 'run', 'replay'])
+def test_a_full_disk_is_one_line_and_leaves_nothing_partial(tmp_path, argv, left):
+    """Each writing command under a 20 kB file-size limit (what a full disk does to a write):
+    one line saying so, exit 2, and nothing partial -- no output at all, or a bag's storage
+    file with the line naming the command that rebuilds it (never a temporary's name)."""
+    code = ('import resource, signal, sys\n'
+            'signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n'
+            'resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))\n'
+            'from servovalve_twin.cli import main\n'
+            f'sys.exit(main({argv!r}))\n')
+    r = subprocess.run([sys.executable, '-c', code], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=600, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    print(r.stderr)
+    assert r.returncode == 2 and r.stderr.count('\n') == 1 and 'Traceback' not in r.stderr
+    assert 'the file size limit is reached' in r.stderr and '.part' not in r.stderr
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob('*')) == left
+    if left:
+        assert f'servovalve-twin reindex {left[0]}' in r.stderr
 
 
 def test_a_symbolic_link_is_replaced_not_written_through(tmp_path, capsys):

@@ -185,10 +185,15 @@ class Evaluation:
                 self.nonfinite[k] += int((~ok).sum())
                 self.first_nonfinite.setdefault(k, float(t[np.argmin(ok)]))
         if self._cols is not None:
-            t.tofile(self._cols['t'])
-            for j, k in enumerate(self.outputs):
-                np.ascontiguousarray(b.out[:, j]).tofile(self._cols[f'outputs/{k}'])
-            b.level.astype(np.int8).tofile(self._cols['level'])
+            try:
+                t.tofile(self._cols['t'])
+                for j, k in enumerate(self.outputs):
+                    np.ascontiguousarray(b.out[:, j]).tofile(self._cols[f'outputs/{k}'])
+                b.level.astype(np.int8).tofile(self._cols['level'])
+            except OSError as exc:
+                # numpy's short write has no errno ("1001 requested and 0 written")
+                from ..outputs import short_write
+                raise short_write(self.json_path, exc) from None
 
     def _columns(self) -> list[str]:
         return ['t', *(f'outputs/{k}' for k in self.outputs), 'level']

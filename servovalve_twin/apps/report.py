@@ -56,15 +56,29 @@ def make_report(*, out_dir: Path, overrides: Mapping[str, Any] | None = None) ->
         raise TwinError(f'--out-dir {out_dir}: exists and is not an empty directory; report '
                         'writes into a new one (nothing is overwritten)')
     load0 = os.getloadavg()[0]
-    tables = _tables(out_dir, overrides)
-    import numba
-    page = (f'# servovalve_twin report\n\n'
-            f'servovalve_twin {__version__}, {time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}'
-            f'; {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python '
-            f'{platform.python_version()}, numba {numba.__version__}; load average '
-            f'{load0:.2f} before, {os.getloadavg()[0]:.2f} after (the step costs move with '
-            f'it).\n\n{tables}\n')
-    write_new(out_dir / 'report.md', page)
+    created = not out_dir.exists()
+    try:
+        tables = _tables(out_dir, overrides)
+        import numba
+        page = (f'# servovalve_twin report\n\nservovalve_twin {__version__}, '
+                f'{time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}; '
+                f'{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python '
+                f'{platform.python_version()}, numba {numba.__version__}; load average '
+                f'{load0:.2f} before, {os.getloadavg()[0]:.2f} after (the step costs move with '
+                f'it).\n\n{tables}\n')
+        write_new(out_dir / 'report.md', page)
+    except BaseException:
+        # a report is whole or absent: the directory was new or empty, so all in it is ours
+        # (a full disk left an empty directory, or figures without their page)
+        for f in out_dir.iterdir() if out_dir.is_dir() else ():
+            if f.is_file() and not f.is_symlink():
+                f.unlink()
+        if created:
+            try:
+                out_dir.rmdir()
+            except OSError:
+                pass
+        raise
     return page
 
 

@@ -13,6 +13,7 @@ run loses at most that much (``servovalve-twin reindex`` makes the rest readable
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import os
@@ -25,8 +26,8 @@ import numpy as np
 import yaml
 
 from .. import __version__
-
 from ..errors import BagError
+from ..outputs import DISK_FULL, write_failed
 from .cdr import CDR_HEADER
 from .mcap_file import McapFileWriter
 
@@ -124,6 +125,31 @@ def _name_max(directory: Path) -> int:
     return 255
 
 
+def _disk_full_is_one_line(method):
+    """A write of the bag that finds the disk full (or a quota, or the file size limit)
+    ends in one line that names what is kept and the command that rebuilds it: the storage
+    file holds what was written, and ``metadata.yaml`` cannot be (a run left a bag without
+    it and no word of reindex)."""
+    @functools.wraps(method)
+    def guarded(self, *args, **kwargs):
+        if self.disk_full:
+            return None        # said once; the shutdown that follows flushes and closes
+        try:
+            return method(self, *args, **kwargs)
+        except OSError as exc:
+            if exc.errno not in DISK_FULL:
+                raise
+            self.closed = self.disk_full = True
+            try:
+                self._fh.close()
+            except OSError:
+                pass
+            raise BagError(str(write_failed(
+                self.dir, exc, f'the messages written before are in {self.file_name}; free '
+                f'space, then rebuild the bag: servovalve-twin reindex {self.dir}'))) from None
+    return guarded
+
+
 class BagWriter:
     """Writes one bag directory; topics are added before their first message.
 
@@ -192,6 +218,8 @@ class BagWriter:
         self._flushed_ns = 0
         self._flush_every = flush_every_ns
         self.closed = False
+        #: a write found the disk full: the error was raised, nothing more is written
+        self.disk_full = False
 
     def add_topic(self, topic: str, type_name: str, qos: list[dict] | None = None,
                   definition: bytes | None = None) -> None:
@@ -211,6 +239,7 @@ class BagWriter:
                                   offered_qos_profiles=qos, type_description_hash=thash)
         self.counts[topic] = 0
 
+    @_disk_full_is_one_line
     def write(self, topic: str, data: bytes, log_ns: int, publish_ns: int | None = None) -> None:
         """One serialized CDR message (with its 4-byte encapsulation header)."""
         self._mcap.add_message(self.channels[topic], log_ns, data,
@@ -228,6 +257,7 @@ class BagWriter:
         bytes are the encapsulation header 00 01 00 00 and the little-endian double."""
         self.write_float64_many([(topic, log_ns, values)])
 
+    @_disk_full_is_one_line
     def write_float64_many(self, batches) -> None:
         """:meth:`write_float64` of several topics, ``(topic, log times, values)`` each, into
         the file in that order (one topic's messages after the other's), converted and packed
@@ -251,10 +281,12 @@ class BagWriter:
         self.first_ns = first if self.first_ns is None else min(self.first_ns, first)
         self.last_ns = max(self.last_ns, last)
 
+    @_disk_full_is_one_line
     def flush(self) -> None:
         self._mcap.flush()
         self._flushed_ns = self.last_ns
 
+    @_disk_full_is_one_line
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         self._mcap.add_metadata(name, {str(k): str(v) for k, v in data.items()})
         self._mcap.flush()
@@ -274,6 +306,7 @@ class BagWriter:
                         duration=dict(nanoseconds=duration), message_count=total)],
             custom_data=None, ros_distro=os.environ.get('ROS_DISTRO', ROS_DISTRO))
 
+    @_disk_full_is_one_line
     def close(self) -> None:
         """Write the embedded ``rosbag2`` record, the MCAP summary and ``metadata.yaml``."""
         if self.closed:

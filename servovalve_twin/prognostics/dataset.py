@@ -20,7 +20,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import TwinError
-from ..outputs import output_file, output_path
+from ..outputs import DISK_FULL, output_file, output_path, write_failed
 from .parallel import SchedulerLost
 
 
@@ -43,10 +43,11 @@ def write_dataset(out: Path, results: Iterable[Mapping[str, Any]], total: int | 
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise TwinError(f'{out} exists and is not an empty directory; give a new directory '
                         '(a sweep overwrites nothing)')
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     npz = stream = writer = None
-    stopped = None
+    stopped = failed = None
     # the rows and traces stream into hidden files renamed into place once whole: a sweep
     # killed outright (SIGKILL, a power cut) leaves no dataset.csv or traces.npz that is a
     # part of one (it left a traces.npz that was not a zip file)
@@ -76,14 +77,35 @@ def write_dataset(out: Path, results: Iterable[Mapping[str, Any]], total: int | 
         stopped = ('a worker process died (killed?)', 2)
     except SchedulerLost as exc:
         stopped = (str(exc), 2)
+    except OSError as exc:
+        if exc.errno not in DISK_FULL:
+            raise
+        failed = exc
     finally:
         for f in (npz, stream):
             if f is not None:
-                f.close()
+                try:
+                    f.close()
+                except OSError as exc:          # a full disk fails the close too
+                    failed = failed or exc
     csv_part.unlink(missing_ok=True)            # _complete writes it anew, in run order
-    if npz is not None:
-        npz_part.replace(out / 'traces.npz')
-    summary = _complete(out, rows)
+    try:
+        if failed is not None:
+            raise failed
+        if npz is not None:
+            npz_part.replace(out / 'traces.npz')
+        summary = _complete(out, rows)
+    except (OSError, TwinError) as exc:
+        # a dataset is whole or absent: the directory was new or empty, so all in it is ours
+        # (a full disk left a .dataset.csv.part and a .traces.npz.part)
+        for f in out.iterdir():
+            if f.is_file() and not f.is_symlink():
+                f.unlink()
+        if created:
+            out.rmdir()
+        if isinstance(exc, OSError):
+            raise write_failed(out, exc, 'nothing of the sweep was kept') from None
+        raise TwinError(f'{exc}; nothing of the sweep was kept') from None
     if stopped:
         what, code = stopped
         raise SweepStopped(f'{what} after {len(rows)} of {total or "?"} runs; {out} holds the '
