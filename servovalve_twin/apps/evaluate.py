@@ -19,7 +19,8 @@ from ..bag.anybag import AnyBag, open_any_bag
 from ..bag.reader import FLOAT64, iter_float64_blocks
 from ..errors import BagError
 from ..physics.params import EhaParams
-from ..prognostics.algorithm import AlgorithmRun, AlgorithmRunner, Watchdog, load_algorithm
+from ..prognostics.algorithm import (AlgorithmRun, AlgorithmRunner, Watchdog, exits_refused,
+                                    load_algorithm)
 
 
 def _input_topics(bag: AnyBag, names) -> dict[str, str]:
@@ -114,7 +115,8 @@ def evaluate_blocks(bag_path: str | Path, algorithm: Any,
             for j, name in enumerate(alg.inputs):
                 table[:, j] = inputs[name]
             # (per block: reading the bag between blocks is not the algorithm's time)
-            with Watchdog(lambda: runner.beats, f'algorithm {alg.title}'):
+            with Watchdog(lambda: runner.beats, f'algorithm {alg.title}'), \
+                    exits_refused(f'algorithm {alg.title}'):
                 out, level, changes = runner.block(t_ns, table)
             yield Block(t_ns, out, level, [m for _, m in changes])
     return alg, run()

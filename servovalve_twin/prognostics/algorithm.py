@@ -38,12 +38,15 @@ A bad class path, a missing input or output name, or an algorithm that raises is
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
+import itertools
 import math
+import os
 import threading
 import time
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -208,6 +211,36 @@ class Watchdog:
         return False
 
 
+def in_step_beats(runners: Sequence['AlgorithmRunner']) -> Callable[[], int]:
+    """A :class:`Watchdog`'s beats for algorithms stepped among other work (the twin's
+    lockstep): their steps while one of them is inside ``step``, else a count that always
+    moves -- the twin waiting for a follower or pacing to the wall clock is no stall."""
+    idle = itertools.count()
+
+    def beats() -> int:
+        if any(r.in_step for r in runners):
+            return sum(r.beats for r in runners)
+        return -1 - next(idle)
+    return beats
+
+
+@contextlib.contextmanager
+def exits_refused(what: str) -> Iterator[None]:
+    """``os._exit`` raises instead of ending the process while a user's algorithm runs: it
+    skips every handler, so a run it ended left a bag without ``metadata.yaml`` and said
+    nothing (rc 0). ``sys.exit`` is a SystemExit, which the runner already names."""
+    real = os._exit
+
+    def refused(code=0):
+        raise AlgorithmError(f'{what} called os._exit({code}): a run is ended by the twin, '
+                             'not by an algorithm (raise an exception to stop it)')
+    os._exit = refused
+    try:
+        yield
+    finally:
+        os._exit = real
+
+
 def load_algorithm(spec: Any, params: Mapping[str, Any] | None = None) -> Algorithm:
     """An instance from ``'package.module:ClassName'``, a class or an instance (``params``
     apply to the first two)."""
@@ -266,8 +299,9 @@ class AlgorithmRunner:
         check_declaration(alg)
         self.alg = alg
         self.period = period
-        #: steps taken (a :class:`Watchdog` reads it)
+        #: steps taken, and whether one is under way (a :class:`Watchdog` reads them)
         self.beats = 0
+        self.in_step = False
         self._last = OK                      # the level of the last tick :meth:`block` ran
         try:
             alg.setup(period, nominal)
@@ -281,6 +315,7 @@ class AlgorithmRunner:
         t = t_ns * 1e-9
         alg = self.alg
         self.beats += 1
+        self.in_step = True
         try:
             out = alg.step(t, u)
             health = alg.health()
@@ -289,6 +324,8 @@ class AlgorithmRunner:
         except (Exception, SystemExit) as exc:  # noqa: BLE001 -- the user's code
             raise AlgorithmError(f'algorithm {alg.title} raised at t = {t:.3f} s: '
                                  f'{type(exc).__name__}: {exc}') from None
+        finally:
+            self.in_step = False
         try:
             raw = [out[name] for name in alg.outputs]
         except (KeyError, TypeError) as exc:

@@ -64,7 +64,7 @@ from ..physics.params import EhaParams
 from ..physics.scenario import Scenario
 from ..physics.simulate import OUTPUT_PERIOD_NS, effective_params, steps_per
 from ..physics.valves import get_monitor_model, get_valve_model
-from ..prognostics.algorithm import load_algorithm
+from ..prognostics.algorithm import Watchdog, exits_refused, in_step_beats, load_algorithm
 from .graph import EXECUTORS, GraphClock, OwnerLeft, absolute_namespace
 from .config import (TwinResult, check_clock_options, ros_param, ros_param_value,
                      scenario_label)
@@ -228,7 +228,9 @@ class Twin:
         self.algorithms = []
         for i, spec in enumerate(algorithms):
             cls, aparams = spec if isinstance(spec, tuple) else (spec, None)
-            alg = load_algorithm(cls, aparams)
+            # (an import that blocks held run for ever)
+            with Watchdog(lambda: 0, f'algorithm {cls!r}: its import'):
+                alg = load_algorithm(cls, aparams)
             taken = sorted(t for t in algorithm_topics(alg) if t in topics and t != 'diagnostics')
             if taken:
                 # two publishers of one signal: the bag would hold two values per tick
@@ -236,8 +238,9 @@ class Twin:
                                 'of the twin publishes already: give it another topic_prefix')
             name = getattr(alg, 'node_name', None) or (
                 'algorithm' if i == 0 else f'algorithm_{i + 1}')
-            self.algorithms.append(AlgorithmNode(alg, name=name, params=self.params, **kw,
-                                                 parameter_overrides=[sim, period]))
+            with Watchdog(lambda: 0, f'algorithm {alg.title}: its setup'):
+                self.algorithms.append(AlgorithmNode(alg, name=name, params=self.params, **kw,
+                                                     parameter_overrides=[sim, period]))
             topics.update(algorithm_topics(alg))
         #: the nodes that complete a tick after the plant (they read its outputs)
         self.observers = ([self.monitor] if self.monitor else []) + self.algorithms
@@ -277,7 +280,18 @@ class Twin:
         self.stop_requested = True
 
     def run(self, on_tick: Callable[[int, 'Twin'], None] | None = None) -> TwinResult:
-        """Run the scenario; ``on_tick(k, twin)`` is called after each tick (faults, tests)."""
+        """Run the scenario; ``on_tick(k, twin)`` is called after each tick (faults, tests).
+        A user's algorithm runs under a :class:`~..prognostics.algorithm.Watchdog` (a step
+        that makes no progress for STEP_LIMIT_S ends the run with one line, the bag closed)
+        and may not end the process (``os._exit``: the bag was left without its metadata)."""
+        if not self.algorithms:
+            return self._run(on_tick)
+        titles = ', '.join(n.runner.alg.title for n in self.algorithms)
+        with Watchdog(in_step_beats([n.runner for n in self.algorithms]),
+                      f'algorithm {titles}'), exits_refused(f'algorithm {titles}'):
+            return self._run(on_tick)
+
+    def _run(self, on_tick: Callable[[int, 'Twin'], None] | None) -> TwinResult:
         n_ticks = self.scenario.duration_ns // self.period_ns
         faults = self._fault_ticks()
         self.sim.wait_for_followers()

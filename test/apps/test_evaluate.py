@@ -167,6 +167,14 @@ class Stuck(Algorithm):
         if t >= 0.005:
             time.sleep(1e6)             # a step that never returns
         return {'x': u['xj']}
+
+
+class Exiting(Stuck):
+    def step(self, t, u):
+        if t >= 0.005:
+            import os
+            os._exit(0)                 # ended evaluate with rc 0 and no output
+        return {'x': u['xj']}
 '''
 
 
@@ -185,3 +193,6 @@ def test_an_algorithm_that_blocks_is_stopped_by_the_watchdog(tmp_path, monkeypat
     assert main(['evaluate', '@paper_HD', '--algorithm', 'stuck_import:X']) == 2
     err = capsys.readouterr().err
     assert "'stuck_import:X': its import made no progress for 0.5 s" in err, err
+    assert main(['evaluate', '@paper_HD', '--algorithm', 'stuck_alg:Exiting']) == 2
+    err = capsys.readouterr().err
+    assert 'called os._exit(0)' in err and err.count('\n') == 1, err

@@ -619,3 +619,58 @@ def test_no_live_parameter_value_stops_the_twin(ros_context, tmp_path):
     assert refused > 0
     topics = read_bag(tmp_path / 'b').topics
     assert topics['/xj'] == topics['/monitor/residual_xj'] == round(SHORT['duration'] / 1e-3) + 1
+
+
+STUCK_AND_EXITING = '''
+import os
+import time
+from servovalve_twin.prognostics.algorithm import Algorithm
+
+
+class Stuck(Algorithm):
+    inputs = ('xj',)
+    outputs = ('x',)
+
+    def step(self, t, u):
+        if t >= 0.005:
+            time.sleep(1e6)             # a step that never returns
+        return {'x': u['xj']}
+
+
+class Exiting(Stuck):
+    def step(self, t, u):
+        if t >= 0.005:
+            os._exit(0)                 # ends the process: no handler runs
+        return {'x': u['xj']}
+
+
+class Waiting(Stuck):
+    def step(self, t, u):
+        time.sleep(0.002)              # slow, but every step returns
+        return {'x': u['xj']}
+'''
+
+
+def test_a_user_algorithm_cannot_hang_or_end_the_twin(tmp_path, monkeypatch, capsys):
+    """`run` with a user's algorithm whose step blocks (held the run for ever) or calls
+    os._exit (rc 0, a bag without metadata.yaml): one line, exit 2, the bag closed and
+    readable. One that is merely slow -- 2 ms a step, 0.5 s the limit, 1 s a run -- and a run
+    that waits between ticks are no stall."""
+    from servovalve_twin.bag.reader import read_bag
+    from servovalve_twin.cli import main
+    from servovalve_twin.prognostics import algorithm
+    monkeypatch.setattr(algorithm, 'STEP_LIMIT_S', 0.5)
+    (tmp_path / 'user_algs.py').write_text(STUCK_AND_EXITING)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for cls, fragment in (('Stuck', 'algorithm Stuck made no progress for 0.5 s'),
+                          ('Exiting', 'algorithm Exiting called os._exit(0)')):
+        bag = tmp_path / cls
+        assert main(['run', '--valve-model', 'C2', '--bag', str(bag), '--algorithm',
+                     f'user_algs:{cls}']) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and err.count('\n') == 1, err
+        assert (bag / 'metadata.yaml').is_file()
+        assert len(read_bag(bag).signals['t']) >= 5
+    assert main(['run', '--valve-model', 'C2', '--no-bag', '--real-time-factor', '1',
+                 '--algorithm', 'user_algs:Waiting']) == 0
+    assert os._exit is algorithm.os._exit and os._exit.__module__ == 'posix'
