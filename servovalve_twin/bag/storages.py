@@ -503,12 +503,13 @@ class Sqlite3Storage(Storage):
                    + ' ORDER BY timestamp, id')
             last_id: dict[int, int] = {}
             for tid, t, data, rid in con.execute(sql, args):
-                if tid not in names or type(t) is not int or type(data) is not bytes:
-                    # no checksum: a damaged row is recognised by what it cannot be
+                if tid not in names or type(t) is not int or t < 0 or type(data) is not bytes:
+                    # no checksum: a damaged row is recognised by what it cannot be (a
+                    # negative time reached the live view's unsigned stamp: a traceback)
                     raise BagError(f'{str(f)!r} is corrupt: a message row with topic id '
                                    f'{tid!r}, timestamp {t!r}, data of type '
                                    f'{type(data).__name__} (expected a topic of the file, an '
-                                   'integer time and bytes)')
+                                   'integer time >= 0 and bytes)')
                 # a recorder inserts one topic's messages as they arrive, so their rows and
                 # their times rise together; times that fall as the rows rise were rewritten
                 # (every timestamp reversed was read as a valid run by evaluate)

@@ -337,6 +337,11 @@ SQLITE_DAMAGE = {
         f'UPDATE messages SET data = substr(data, 1, 7) WHERE id = (SELECT id FROM messages '
         f'WHERE topic_id = {_XJ} ORDER BY timestamp LIMIT 1 OFFSET 300)',
         'its message on /xj at 0.300000 s: not a little-endian CDR'),
+    'a negative timestamp': (
+        f'UPDATE messages SET timestamp = -1000000 WHERE id = (SELECT id FROM messages '
+        f'WHERE topic_id = {_XJ} ORDER BY timestamp LIMIT 1)',
+        'timestamp -1000000, data of type bytes (expected a topic of the file, an integer '
+        'time >= 0 and bytes)'),
     'a message deleted': (
         f'DELETE FROM messages WHERE id = (SELECT id FROM messages WHERE topic_id = {_XJ} '
         f'ORDER BY timestamp LIMIT 1 OFFSET 300)',
