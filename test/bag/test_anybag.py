@@ -434,3 +434,27 @@ def test_every_command_on_a_sqlite3_bag_says_it_cannot_be_verified(layouts, tmp_
             note = f'note: {bag} is a sqlite3 bag, which keeps no checksums: what was read ' \
                    'from it cannot be verified'
             assert (note in err) == said and err.count(note) <= 1, (argv, err)
+
+
+def test_sqlite3_messages_come_in_time_order_not_insertion_order(layouts, tmp_path):
+    """A recorder inserts each topic's messages as they arrive; here the rows were inserted
+    topic by topic (each topic's times still rising with its rows, as a real bag's do). The
+    reader gives them in log-time order, as from the bag it was made from."""
+    import shutil
+    import sqlite3
+    from servovalve_twin.bag.anybag import open_any_bag
+    bags, _, _ = layouts
+    bag = tmp_path / 'b'
+    shutil.copytree(bags['sqlite3'][0], bag)
+    want = list(open_any_bag(bag).messages())
+    (f,) = bag.glob('*.db3')
+    con = sqlite3.connect(f)
+    rows = con.execute('SELECT topic_id, timestamp, data FROM messages '
+                       'ORDER BY topic_id DESC, timestamp').fetchall()
+    con.execute('DELETE FROM messages')
+    con.executemany('INSERT INTO messages (topic_id, timestamp, data) VALUES (?, ?, ?)', rows)
+    con.commit()
+    con.close()
+    got = list(open_any_bag(bag).messages())
+    assert [t for _, t, _ in got] == sorted(t for _, t, _ in got)
+    assert sorted(got) == sorted(want) and len(got) == len(want)

@@ -5,6 +5,7 @@ parameters, a fault scheduled mid-run, a unit whose valve model fails."""
 import numpy as np
 import pytest
 
+from servovalve_twin.config import load_scenario
 from servovalve_twin.errors import ModelError, ParameterError
 from servovalve_twin.physics.fleet import simulate_many
 from servovalve_twin.physics.params import DEFAULTS
@@ -49,8 +50,12 @@ def test_the_scenario_s_own_faults_and_a_continuous_ecu():
 def test_a_failing_unit_stops_alone():
     """A unit whose HD solve cannot converge (its leakage coefficient NaN: a corrupted
     parameter set, which validation would refuse, forced in) fails as it does alone; its
-    neighbours still equal their own runs. 'raise' names the unit; 'none' gives None."""
-    scn = short()
+    neighbours still equal their own runs, to the end of a flight longer than one chunk of
+    steps (a failure that stopped every unit at the chunk's end passed a shorter flight).
+    'raise' names the unit; 'none' gives None."""
+    from servovalve_twin.physics.simulate import CHUNK_STEPS
+    scn = load_scenario('paper')
+    assert scn.duration_ns > 1.5 * CHUNK_STEPS * DEFAULTS.DT * 1e9
     bad = DEFAULTS.replace(M=510.0)
     object.__setattr__(bad, 'CLk', float('nan'))
     with pytest.raises(ModelError, match='failed to converge'):

@@ -59,3 +59,50 @@ def test_compare_tables_json_plot_and_tolerance(tmp_path, capsys):
                  str(other)]) == 0
     assert main(['compare', str(hd), str(other)]) == 2
     assert 'different inputs' in capsys.readouterr().err
+
+
+def _scenario(tmp_path, seconds):
+    import yaml
+    path = tmp_path / f'{seconds:g}s.yaml'
+    path.write_text(yaml.safe_dump({'duration': float(seconds), 'com': [[0.0, 0.0],
+                                                                        [0.05, 0.02]]}))
+    return str(path)
+
+
+def test_pacing_divides_the_simulated_time_by_the_factor(tmp_path):
+    """2 s simulated at a real-time factor of 8 take at least 0.25 s of wall time (pacing
+    never runs ahead) and far less than the 16 s a factor applied the wrong way round gives."""
+    import re
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, '-m', 'servovalve_twin.cli', 'run', '--valve-model',
+                        'C2', '--scenario', _scenario(tmp_path, 2), '--no-bag',
+                        '--real-time-factor', '8'], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    wall = float(re.search(r'2\.000 s simulated in ([0-9.]+) s', r.stdout).group(1))
+    assert 0.25 * 0.98 <= wall < 4.0, r.stdout
+
+
+def test_run_interrupted_exits_130_with_a_finished_bag(tmp_path):
+    """SIGINT to a paced run once its bag has begun: exit 130 (what a shell's Ctrl-C means),
+    INTERRUPTED in its line, the bag closed with its metadata."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    bag = tmp_path / 'b'
+    proc = subprocess.Popen([sys.executable, '-m', 'servovalve_twin.cli', 'run', '--valve-model',
+                             'C2', '--scenario', _scenario(tmp_path, 30), '--bag', str(bag),
+                             '--real-time-factor', '1'], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    # running: the bag has grown past its first chunks (a SIGINT while the twin is still
+    # starting removes the bag it began: a run that never started records nothing)
+    mcap = bag / 'b_0.mcap'
+    deadline = time.monotonic() + 120
+    while not (mcap.exists() and mcap.stat().st_size > 20_000) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, (out, err)
+    assert 'INTERRUPTED' in out and 'Traceback' not in err
+    assert (bag / 'metadata.yaml').is_file() and len(read_bag(bag).signals['t']) > 0
