@@ -148,6 +148,9 @@ def place_new(built: str | Path, path: str | Path) -> Path:
         except FileExistsError:
             raise TwinError(f'{path} exists; give a new file name (nothing is overwritten)'
                             ) from None
+    except OSError as exc:
+        # (the error named the build's temporary directory, /tmp/svt_fmu_.../x.fmu)
+        raise write_failed(path, exc) from None
     finally:
         tmp.unlink(missing_ok=True)
     return path

@@ -51,11 +51,12 @@ _MONITOR = 'servovalve_twin.prognostics.monitor:MonitorAlgorithm'
     (['sweep', '--fault', 'leakage_growth:5', '--nominal', '1', '--traces', '--workers', '1',
       '--out', 'sw'], []),
     pytest.param(['report', '--out-dir', 'rep'], [], marks=pytest.mark.slow),
+    (['fmu', '--valve-model', 'C2', 'x.fmu'], []),
     pytest.param(['run', '--valve-model', 'C2', '--bag', 'b'], ['b', 'b/b_0.mcap'],
                  marks=pytest.mark.ros),
     pytest.param(['replay', '@paper_HD', '--valve-model', 'C2', '--out', 'r'],
                  ['r', 'r/r_0.mcap'], marks=pytest.mark.ros),
-], ids=['evaluate', 'sweep', 'report', 'run', 'replay'])
+], ids=['evaluate', 'sweep', 'report', 'fmu', 'run', 'replay'])
 def test_a_full_disk_is_one_line_and_leaves_nothing_partial(tmp_path, argv, left):
     """Each writing command under a 20 kB file-size limit (what a full disk does to a write):
     one line saying so, exit 2, and nothing partial -- no output at all, or a bag's storage

@@ -8,6 +8,7 @@ modules it imports), so the importing tool's Python needs only the packages list
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -15,7 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ..errors import TwinError
-from ..outputs import place_new
+from ..outputs import place_new, write_failed
 from ..physics.params import DEFAULTS
 from ..physics.sensors import sensors_from_dict
 from ..physics.simulate import steps_per
@@ -67,7 +68,6 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
     """Write ``out`` (.fmu): the EHA with ``valve_model``, its ECU sampled every
     ``control_period``, measured by ``sensors`` (a mapping of the scenario's ``sensors``
     schema; None: ideal). Refuses an existing ``out`` (it overwrites nothing)."""
-    from pythonfmu.builder import FmuBuilder
     model = get_valve_model(valve_model)
     n_sub = steps_per(control_period, DEFAULTS, '--control-period')
     sens = sensors_from_dict(sensors, 'sensors')
@@ -80,6 +80,25 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
         raise TwinError(f'{out} exists; give a new file name (nothing is overwritten)')
     if not out.parent.is_dir():
         raise TwinError(f'{out.parent} is not a directory')
+    try:
+        _build(out, model, control_period, sens)
+    except (OSError, shutil.Error) as exc:
+        # the build's temporary directory is not the user's business: say where and why
+        # (shutil.Error listed every file of the carried package under /tmp/svt_fmu_...)
+        cause = exc
+        if isinstance(exc, shutil.Error):
+            import re
+            found = re.search(r'\[Errno (\d+)\]', str(exc))
+            code = int(found.group(1)) if found else 0
+            cause = OSError(code, os.strerror(code) if code else 'a file could not be copied')
+        raise write_failed(out, cause, f'the FMU is built in {tempfile.gettempdir()} (TMPDIR) '
+                           'first; nothing of it was written') from None
+    return out
+
+
+def _build(out: Path, model, control_period: float, sens) -> None:
+    """The FMU built in a temporary directory and moved to ``out`` (:func:`build_fmu`)."""
+    from pythonfmu.builder import FmuBuilder
     with tempfile.TemporaryDirectory(prefix='svt_fmu_') as tmp:
         tmp = Path(tmp)
         script = tmp / f'{SLAVE_MODULE}.py'
@@ -105,7 +124,6 @@ def build_fmu(valve_model: str, out: str | Path, *, control_period: float = 1e-3
                 if name == SLAVE_MODULE or name.split('.')[0] == CARRIED_AS:
                     del sys.modules[name]
         place_new(built, out)
-    return out
 
 
 __all__ = ['build_fmu', 'SLAVE_MODULE', 'REQUIRES', 'CARRIED_AS', 'CONFIG']
