@@ -164,3 +164,23 @@ def test_a_run_that_covers_half_the_reference_says_so(tmp_path, capsys):
     assert cov == dict(common_rows=501, reference_rows=1001, fraction=501 / 1001)
     assert main(['compare', str(full), str(full), '--tolerance', 'xj=1e-9']) == 0
     assert 'covers' not in capsys.readouterr().err
+
+
+def test_a_table_against_a_bag_names_the_ecu_and_phases_are_not_windows_twice(tmp_path,
+                                                                              capsys):
+    """A simulate table carries no ECU period: compared with the 1 ms bag, one warning says
+    how to compare like with like; the paper's phases, each one of its named windows, are
+    not printed a second time as phase1..phase6."""
+    from servovalve_twin.apps.compare import run_windows
+    from servovalve_twin.cli import main
+    from servovalve_twin.config import resolve_bag
+    out = tmp_path / 'run.csv'
+    assert main(['simulate', '--valve-model', 'C2', '--out', str(out)]) == 0
+    capsys.readouterr()
+    assert main(['compare', '@paper_HD', str(out)]) == 0
+    got = capsys.readouterr()
+    assert 'records no ECU period' in got.err and '--ecu-period 0.001' in got.err
+    assert 'phase' not in got.out and 'overstall' in got.out
+    windows = run_windows(resolve_bag('@paper_HD'))
+    assert not [k for k in windows if k.startswith('phase')]
+    assert windows['run1'] == (0.0, 0.2)

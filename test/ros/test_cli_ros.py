@@ -48,7 +48,7 @@ def test_compare_tables_json_plot_and_tolerance(tmp_path, capsys):
                  '--tolerance', 'xj=1.0'])
     out = capsys.readouterr().out
     print(out)
-    assert code == 0 and 'overstall' in out and 'phase4' in out
+    assert code == 0 and 'overstall' in out and 'recovery' in out
     metrics = json.loads(js.read_text())['metrics']
     assert metrics['all']['xj']['max'] > 1e-3 and png.stat().st_size > 1000
     assert main(['compare', str(hd), str(csv), '--tolerance', 'xj=1e-4']) == 1
