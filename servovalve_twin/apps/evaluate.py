@@ -259,6 +259,9 @@ class Evaluation:
                 text += (f' ({bad} ticks NaN or infinite, the first at '
                          f'{self.first_nonfinite[k]:.3f} s)')
             return f'; peak {k} {text}'
-        return (f'{self.title} on {self.bag}: {self.ticks} ticks; first WARN {self.first_warn} '
-                f's, first ERROR {self.first_error} s' + ''.join(map(peak, self.outputs)))
+        # (as the twin's verdict line says it: 'no WARN', never 'None s', times to the ms)
+        when = ', '.join(f'first {n} at {t:.3f} s' if t is not None else f'no {n}'
+                         for n, t in (('WARN', self.first_warn), ('ERROR', self.first_error)))
+        return (f'{self.title} on {self.bag}: {self.ticks} ticks; {when}'
+                + ''.join(map(peak, self.outputs)))
 

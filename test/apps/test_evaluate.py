@@ -114,7 +114,7 @@ def test_the_json_is_byte_for_byte_the_whole_payloads(bag, tmp_path, monkeypatch
     assert sorted(p.name for p in tmp_path.iterdir()) == ['streamed.json', 'whole.json']
     line = capsys.readouterr().out
     n_nan = sum(1 for i in range(1, len(whole.t) + 1) if i % 97 == 0 or i % 89 == 0)
-    assert f'first WARN {whole.t[299]} s, first ERROR {whole.t[699]} s' in line
+    assert f'first WARN at {whole.t[299]:.3f} s, first ERROR at {whole.t[699]:.3f} s' in line
     assert f'peak odd 1 ({n_nan} ticks NaN or infinite, the first at {whole.t[88]:.3f} s)' \
         in line
     assert f'peak t {whole.outputs["t"].max():.6g}' in line
