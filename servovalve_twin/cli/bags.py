@@ -51,9 +51,11 @@ class Compare(Command):
         if args.plot:
             named = {k: v for k, v in windows.items() if not k.startswith('phase')}
             ref, run = rows.runs()
-            plot_overlay({Path(args.ref).stem: ref, Path(args.run).stem: run}, args.plot,
-                         reference=Path(args.ref).stem, title=f'{Path(args.run).stem} against '
-                         f'{Path(args.ref).stem}', windows=named, inputs=True)
+            a, b = Path(args.ref).stem, Path(args.run).stem
+            if a == b:                   # one name for both: the run's line had no label
+                a, b = f'{a} (reference)', f'{b} (run)'
+            plot_overlay({a: ref, b: run}, args.plot, reference=a, title=f'{b} against {a}',
+                         windows=named, inputs=True)
         bad = exceeded(metrics, tolerances)
         if tolerances and short:
             bad.append(short)            # a tolerance holds over the reference, not a part

@@ -174,18 +174,24 @@ def plot_signature(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
              ('peak_rms_p12', 'P12 [MPa]', 1e-6))
     if rows and 'peak_rms_xj' not in rows[0]:           # a user's algorithm: its outputs
         feats = tuple((k, k[len('peak_'):], 1.0) for k in rows[0] if k.startswith('peak_'))
+    # (one fault made a 270 px figure whose title was cut at both edges)
     fig, axes = plt.subplots(len(feats), max(1, len(faults)),
-                             figsize=(3.0 * max(1, len(faults)), 7.0), squeeze=False)
+                             figsize=(max(6.5, 3.0 * max(1, len(faults))), 7.0), squeeze=False)
     nominal = [r for r in rows if not r['faulty']]
     for j, fault in enumerate(faults):
         rs = [r for r in rows if r['fault'] == fault]
         for i, (key, label, k) in enumerate(feats):
             ax = axes[i][j]
             if nominal:
+                # the nominal runs' range from 0 (peaks are >= 0), its top as a dashed line:
+                # a band of a few micrometres was invisible under an axis starting higher
                 vals = [r[key] * k for r in nominal]
-                ax.axhspan(min(vals), max(vals), color='0.85', label='nominal runs')
+                ax.axhspan(min(0.0, min(vals)), max(vals), color='0.85', zorder=0)
+                ax.axhline(max(vals), color='0.4', lw=0.8, ls='--', zorder=1)
             ax.scatter([r['severity'] for r in rs], [r[key] * k for r in rs], s=12,
-                       c=['C3' if r['alarm'] else 'C0' for r in rs])
+                       c=['C3' if r['alarm'] else 'C0' for r in rs], zorder=3)
+            if nominal:
+                ax.set_ylim(bottom=min(0.0, min(vals)))
             if i == 0:
                 ax.set_title(fault, fontsize=8)
             if j == 0:
@@ -195,8 +201,8 @@ def plot_signature(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
                 ax.set_xlabel('severity', fontsize=8)
             ax.tick_params(labelsize=7)
             ax.grid(True, lw=0.3)
-    fig.suptitle('Fault signatures (red: alarm raised; grey: range of the nominal runs)',
-                 fontsize=9)
+    fig.suptitle('Fault signatures: red, alarm raised; grey band to the dashed line, the '
+                 'nominal runs', fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
