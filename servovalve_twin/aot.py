@@ -3,7 +3,10 @@ runs it after installing) builds one extension module holding every valve model'
 (:func:`~.physics.plant.run_steps_for`, without and with sensors, and the fleet's
 :func:`~.physics.fleet.run_fleet_for`) with numba's ahead-of-time compiler and gcc, so that a
 process runs a loop without compiling it or loading numba's cache. A plain ``pip install``
-(not editable) runs it once the same way; the module then goes beside the installed package.
+builds no module (pip builds wheels without numba); run ``python -m servovalve_twin.aot`` once
+after it (the module goes beside the installed package) -- without it each model's loops are
+compiled by the first process that runs them (2-5 s) and loaded from numba's disk cache by the
+next ones. ``--check`` says whether the module of the current physics is there.
 
 This module is the builder; the loader the physics uses (:func:`~.jitcache.aot_loop`) is in
 :mod:`~.jitcache`, below the physics (the physics imported it from here: a circle). The module is
@@ -100,8 +103,14 @@ def main(argv=None) -> int:
                     help='the directory of the module (default the package)')
     ap.add_argument('--if-missing', action='store_true',
                     help='build only if the module of the current physics is not there')
+    ap.add_argument('--check', action='store_true',
+                    help='build nothing: exit 0 if the module of the current physics is '
+                         'there, 1 if not')
     args = ap.parse_args(argv)
-    if args.if_missing and any(args.dest.glob(module_name() + '.*')):
+    there = any(args.dest.glob(module_name() + '.*'))
+    if args.check:
+        return 0 if there else 1
+    if args.if_missing and there:
         return 0
     path = build(args.dest)
     print(f'compiled the step loops into {path}', file=sys.stderr)
