@@ -40,6 +40,11 @@ OWNER_CHECK_S = 2.0
 #: DDS drops a vanished one after its lease, 20 s with Fast DDS's default)
 CLOCK_ACK_S = 2.0
 CLOCK_ACK_MAX_S = 30.0
+#: how long the /clock owner waits for its --followers before it gives up (wall seconds):
+#: a follower that never comes (a typo in its namespace, a crash) held the owner for ever
+FOLLOWERS_WAIT_S = 300.0
+#: a /clock owner that finds another within this long after it started refuses to run
+NEWCOMER_S = 10.0
 #: /clock from its owner: the latest time is all that counts, and a follower that joins late
 #: (discovery) is handed it at once (transient local); rclpy's time sources (best effort,
 #: volatile) match it
@@ -92,6 +97,9 @@ class GraphClock:
         self.turned_ns = -1             # ... and taken by the executor
         #: a node outside the twin subscribes to /clock (refreshed at every turn)
         self.wanted = True
+        self._owner_checked = -float('inf')     # the last look for another /clock owner
+        self._born = time.perf_counter()
+        self._warned_owner = False
         self._turn: Future | None = None
         node.create_subscription(Clock, '/clock', self._on_clock, CLOCK_QOS if follow else QOS)
         if follow:
@@ -101,9 +109,39 @@ class GraphClock:
             node.create_subscription(Empty, '~/_turn', self._on_turn, QOS)
 
     # -- before and at a tick ----------------------------------------------------------------
+    def other_owners(self) -> list[str]:
+        """The nodes besides this twin's that publish /clock (a graph has one owner)."""
+        me = (self.node.get_name(), self.node.get_namespace())
+        return sorted(f'{i.node_namespace.rstrip("/")}/{i.node_name}'
+                      for i in self.node.get_publishers_info_by_topic('/clock')
+                      if (i.node_name, i.node_namespace) != me)
+
+    def check_single_owner(self) -> None:
+        """The owner beside another publisher of /clock (two owners made every use_sim_time
+        node's time jump between them): within its first :data:`NEWCOMER_S` of wall time the
+        twin is the newcomer and refuses to go on; later the other is, and it warns once (so
+        that the owner already running is not stopped by one that is about to step down)."""
+        if self.pub is None or self._warned_owner:
+            return
+        others = self.other_owners()
+        if not others:
+            return
+        what = (f'another node publishes /clock on this graph ({", ".join(others)}): a graph '
+                'has one /clock owner')
+        if time.perf_counter() - self._born < NEWCOMER_S:
+            raise TwinError(f'{what}; run this twin with --clock follow, or stop the other')
+        self._warned_owner = True
+        self.node.get_logger().warning(f'{what}; nodes on use_sim_time see both')
+
     def before(self, t_ns: int, wall0: float, on_clock_period: bool) -> None:
         """Wait until tick ``t_ns`` may run: following, until /clock has reached it; paced,
-        until the wall clock has (``wall0``: the run's start, perf_counter seconds)."""
+        until the wall clock has (``wall0``: the run's start, perf_counter seconds). The
+        owner looks for a second /clock owner every OWNER_CHECK_S of wall time."""
+        if self.pub is not None:
+            now = time.perf_counter()
+            if now - self._owner_checked >= OWNER_CHECK_S:
+                self._owner_checked = now
+                self.check_single_owner()
         if self.follow and t_ns > self.owner_ns:
             self._wait_for_clock(t_ns)
         elif self.real_time_factor is not None and on_clock_period:
@@ -175,6 +213,7 @@ class GraphClock:
         """The owner: wait (until stopped) for ``followers`` twins following /clock, each
         known by its ``twin_clock`` node in a namespace other than this twin's."""
         said = False
+        start = time.monotonic()
         while self.followers and not self.stopped():
             found = {i.node_namespace for i in self.node.get_subscriptions_info_by_topic(
                 '/clock') if i.node_name == 'twin_clock'} - {self.namespace or '/'}
@@ -184,7 +223,13 @@ class GraphClock:
                 said = True
                 self.node.get_logger().info(
                     f'waiting for {self.followers} twin(s) following /clock '
-                    f'({len(found)} on the graph)')
+                    f'({len(found)} on the graph; at most {FOLLOWERS_WAIT_S:g} s)')
+            if time.monotonic() - start > FOLLOWERS_WAIT_S:
+                raise TwinError(
+                    f'--followers {self.followers}: {len(found)} twin(s) following /clock '
+                    f'came within {FOLLOWERS_WAIT_S:g} s ({", ".join(sorted(found)) or "none"}); '
+                    'start each with --clock follow in a namespace of its own, in the same '
+                    'ROS_DOMAIN_ID, or give fewer')
             time.sleep(PACE_SLICE_S)
 
     def _pace(self, due: float) -> None:

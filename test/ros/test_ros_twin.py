@@ -674,3 +674,50 @@ def test_a_user_algorithm_cannot_hang_or_end_the_twin(tmp_path, monkeypatch, cap
     assert main(['run', '--valve-model', 'C2', '--no-bag', '--real-time-factor', '1',
                  '--algorithm', 'user_algs:Waiting']) == 0
     assert os._exit is algorithm.os._exit and os._exit.__module__ == 'posix'
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_second_clock_owner_is_refused_and_the_first_runs_on(ros_context, tmp_path):
+    """Two twins that both own /clock: the newcomer (within its first NEWCOMER_S) refuses in
+    one line, exit 2; the owner already running goes on (a warning). Before, both published
+    /clock and every use_sim_time node's time jumped between them."""
+    from rclpy.node import Node
+    from servovalve_twin.twin import graph
+    raw = {**SHORT, 'duration': 40.0}
+    first = _namespaced_twin(tmp_path, 'left', raw, '--real-time-factor', '1')
+    started = time.monotonic()
+    watcher = Node('watcher', context=ros_context)
+    try:
+        deadline = started + 60
+        while not watcher.get_publishers_info_by_topic('/clock'):
+            assert time.monotonic() < deadline and first.poll() is None
+            time.sleep(0.05)
+        # the first owner past its own newcomer's grace: it is the one already running
+        time.sleep(max(0.0, graph.NEWCOMER_S + 0.5 - (time.monotonic() - started)))
+        second = _namespaced_twin(tmp_path, 'right', {**SHORT, 'duration': 30.0},
+                                  '--real-time-factor', '1')
+        out, err = second.communicate(timeout=120)
+        assert second.returncode == 2, (out, err)
+        assert 'another node publishes /clock on this graph (/left/twin_clock)' in err, err
+        assert first.poll() is None                 # the owner runs on
+    finally:
+        watcher.destroy_node()
+        first.send_signal(signal.SIGINT)
+        out1, err1 = first.communicate(timeout=120)
+    assert first.returncode == 130, (out1, err1[-2000:])
+
+
+@pytest.mark.ros
+def test_an_owner_whose_followers_never_come_gives_up_in_one_line(ros_context, monkeypatch,
+                                                                  tmp_path):
+    """--followers 1 with no follower on the graph: after FOLLOWERS_WAIT_S (here 1 s) one
+    error naming what came and what to do (it waited for ever), the bag closed."""
+    from servovalve_twin.errors import TwinError
+    from servovalve_twin.twin import graph
+    monkeypatch.setattr(graph, 'FOLLOWERS_WAIT_S', 1.0)
+    with pytest.raises(TwinError, match=r'--followers 1: 0 twin\(s\) following /clock came '
+                                        r'within 1 s \(none\); start each with --clock follow'):
+        run_twin('C2', SHORT, context=ros_context, handle_signals=False, followers=1,
+                 namespace='/solo', bag=tmp_path / 'b')
+    assert (tmp_path / 'b' / 'metadata.yaml').is_file()
