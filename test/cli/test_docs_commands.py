@@ -85,8 +85,9 @@ TOUR = [cmd for n, cmd in command_lines(ROOT / 'README.md')
 def test_the_readme_tour_runs_as_printed(tmp_path):
     """simulate, compare, run (bags/hd), diagnose of that bag, the limits of the paper
     flight, the built-in test: as printed, from a scratch directory that holds the
-    repository's config/ (paths the README names)."""
-    os.symlink(ROOT / 'config', tmp_path / 'config')
+    repository's config/ and docs/ (paths the README names)."""
+    for d in ('config', 'docs'):
+        os.symlink(ROOT / d, tmp_path / d)
     assert len(TOUR) >= 6, TOUR
     for cmd in TOUR:
         r = subprocess.run([sys.executable, '-m', 'servovalve_twin.cli', *shlex.split(cmd)[1:]],
