@@ -125,6 +125,17 @@ def diagnose_bag(bag: str | Path, *, model: str = 'SQ', faults: Sequence[str] = 
     return d
 
 
+def diagnose_fleet_member(job) -> tuple[int, str, Any]:
+    """One bag of ``diagnose BAG1 BAG2 ...`` (``job``: its index, path and
+    :func:`diagnose_bag`'s options) on a worker: (index, bag, the Diagnosis or the bag's one
+    error line) -- one bad bag is that bag's error, not the fleet's."""
+    i, bag, options = job
+    try:
+        return i, bag, diagnose_bag(bag, **options)
+    except TwinError as exc:
+        return i, bag, ' '.join(str(exc).split())
+
+
 def recorded_sensor_bias(provenance) -> dict[str, float]:
     """The offsets of the measured signals' sensors a bag's provenance records (its
     scenario's ``sensors:``): the model's runs read with them."""

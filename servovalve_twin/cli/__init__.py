@@ -75,10 +75,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         from ..config import resolve_bag
-        for attr in ('bag', 'ref', 'run'):        # @paper_HD: a packaged reference bag
+        for attr in ('bag', 'ref', 'run', 'bags'):   # @paper_HD: a packaged reference bag
             value = getattr(args, attr, None)
             if isinstance(value, str) and value.startswith('@'):
                 setattr(args, attr, str(resolve_bag(value)))
+            elif isinstance(value, list):
+                setattr(args, attr, [str(resolve_bag(v)) if v.startswith('@') else v
+                                     for v in value])
         code = int(args.func(args) or 0)
         for bag in _unverified():
             # (6 of 148 runs on damaged sqlite3 bags gave other numbers with rc 0)

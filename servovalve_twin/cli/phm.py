@@ -50,9 +50,15 @@ class Diagnose(Command):
     help = 'which catalog fault, how severe: a simplified model fitted to a recorded bag'
 
     def add_arguments(self, p):
-        p.add_argument('bag', metavar='BAG', nargs='?', help='bag directory, .mcap or .db3 file')
+        p.add_argument('bags', metavar='BAG', nargs='*',
+                       help='bag directory, .mcap or .db3 file; several: a fleet, diagnosed '
+                            'in parallel, one JSON each in the --json directory')
         p.add_argument('--model', default='SQ', metavar='SQ|C2|...',
                        help='the simplified model fitted (default SQ)')
+        p.add_argument('--workers', type=int, default=None, metavar='N',
+                       help='with several bags: processes (default one per core)')
+        p.add_argument('--scheduler', metavar='tcp://HOST:PORT',
+                       help='with several bags: diagnose them on this Dask cluster')
         p.add_argument('--limits', metavar='SCENARIO',
                        help="instead of a bag: each fault's detection limit and severity "
                             'resolution on this excitation (a built-in name or a YAML file)')
@@ -81,7 +87,9 @@ class Diagnose(Command):
         add_param_options(p)
         p.add_argument('--control-period', type=positive_float, metavar='S',
                        help="the ECU's period of the run (default: the bag's, else 1 ms)")
-        p.add_argument('--json', metavar='FILE', help='the diagnosis as JSON (needed with BAG)')
+        p.add_argument('--json', metavar='FILE|DIR', help='the diagnosis as JSON (needed with '
+                       'BAG); with several bags a new directory: one JSON per bag and '
+                       'summary.json')
         p.add_argument('--plot', metavar='FILE.png', help='recorded against fitted signals')
 
     def main(self, args):
@@ -90,7 +98,7 @@ class Diagnose(Command):
         from ..apps.diagnose import diagnose_bag, parse_faults, parse_window, plot_diagnosis
         free = tuple(n.strip() for n in (args.free or '').split(',') if n.strip())
         if args.limits is not None:
-            if args.bag is not None:
+            if args.bags:
                 raise TwinError('diagnose takes BAG or --limits SCENARIO, not both')
             from ..prognostics.excitation import LIMITS_FREE
             return _print_limits(args, LIMITS_FREE if args.free is None else free,
@@ -98,7 +106,7 @@ class Diagnose(Command):
         if args.onset_at is not None:
             raise TwinError('--onset-at goes with --limits SCENARIO (a fit finds the onset '
                             'with --onset)')
-        if args.bag is None or args.json is None:
+        if not args.bags or args.json is None:
             raise TwinError('diagnose needs BAG and --json FILE (or --limits SCENARIO for the '
                             'detection limits of an excitation)')
         if args.bootstrap < 0 or 0 < args.bootstrap < MIN_BOOTSTRAP:
@@ -106,12 +114,15 @@ class Diagnose(Command):
             # interval (one refit gave an interval that excluded its own estimate)
             raise TwinError(f'--bootstrap {args.bootstrap}: allowed 0 (the Jacobian interval) '
                             f'or at least {MIN_BOOTSTRAP} refits')
+        options = dict(model=args.model, faults=parse_faults(args.faults),
+                       window=parse_window(args.window), free=free, bootstrap=args.bootstrap,
+                       pairs=args.pairs, nominal=overrides(args),
+                       control_period=args.control_period, onset=args.onset, alpha=args.alpha)
+        if len(args.bags) > 1 or args.workers is not None or args.scheduler:
+            return _diagnose_fleet(args, options)
+        args.bag = args.bags[0]
         t = time.perf_counter()
-        d = diagnose_bag(args.bag, model=args.model, faults=parse_faults(args.faults),
-                         window=parse_window(args.window), free=free, bootstrap=args.bootstrap,
-                         pairs=args.pairs, nominal=overrides(args),
-                         control_period=args.control_period, onset=args.onset,
-                         alpha=args.alpha)
+        d = diagnose_bag(args.bag, **options)
         wall = time.perf_counter() - t
         write_json(args.json, d.to_json())
         for w in d.warnings:
@@ -129,6 +140,58 @@ class Diagnose(Command):
                             for k, v in c.free.items())
             print(f'  {c.fault:24s}{sev:>18s}  score {c.score:10.1f}{extra}')
         return 0
+
+
+def _diagnose_fleet(args, options) -> int:
+    """``diagnose BAG1 BAG2 ... --json DIR``: each bag on a local process or a Dask worker,
+    its JSON and its line as it finishes; ``summary.json`` at the end (of what finished, on
+    Ctrl-C too)."""
+    from ..apps.compare import write_json
+    from ..apps.diagnose import diagnose_fleet_member
+    from ..prognostics.parallel import (Signalled, check_scheduler, map_unordered,
+                                        restore_signals, stop_on_signals)
+    if args.plot:
+        raise TwinError('--plot goes with one bag')
+    if args.workers is not None and args.workers < 1:
+        raise TwinError(f'--workers must be >= 1, got {args.workers}')
+    if args.scheduler:
+        check_scheduler(args.scheduler)
+    out = Path(args.json)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise TwinError(f'--json {out}: with several bags a new or empty directory (one JSON '
+                        'per bag and summary.json; nothing is overwritten)')
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [(i, bag, options) for i, bag in enumerate(args.bags)]
+    rows = []
+    old = stop_on_signals()
+    code = 0
+    try:
+        for i, bag, d in map_unordered(diagnose_fleet_member, jobs, workers=args.workers,
+                                       scheduler=args.scheduler):
+            if isinstance(d, str):              # the bag's one error line
+                print(f'{bag}: error: {d}', file=sys.stderr)
+                rows.append(dict(index=i, bag=bag, error=d))
+                code = 2
+                continue
+            name = f'{i:03d}_{Path(bag).name or "bag"}.json'
+            j = d.to_json()
+            write_json(out / name, j)
+            print(f'{bag}: {_verdict_line(d)} -> {out / name}')
+            rows.append(dict(index=i, bag=bag, json=name, fault=j['fault'],
+                             severity=j['severity'],
+                             interval=j['interval'], confidence=j['confidence'],
+                             warnings=len(j['warnings'])))
+    except KeyboardInterrupt as exc:
+        code = 128 + exc.signum if isinstance(exc, Signalled) else 130
+        print(f'servovalve-twin diagnose: interrupted after {len(rows)} of {len(jobs)} bags; '
+              f'{out} holds theirs', file=sys.stderr)
+    finally:
+        restore_signals(old)
+        rows.sort(key=lambda r: r['index'])
+        write_json(out / 'summary.json', dict(bags=len(jobs), diagnosed=rows))
+    print(f'{sum("error" not in r for r in rows)} of {len(jobs)} bags diagnosed -> '
+          f'{out / "summary.json"}')
+    return code
 
 
 #: a fit worse than this share of the calibration's right fits is called poor on the line

@@ -93,3 +93,43 @@ def test_a_bags_stale_gains_give_way_to_its_designs_calibration():
     assert design is recorded and line is None
     design, line = _calibrated_constants(other.replace(XSS=cal['XSS'], GPQ=cal['GPQ']), {})
     assert line is None and design.xss == cal['XSS']
+
+
+def _fleet(tmp_path, *extra):
+    """diagnose of two bags and one that is no bag, as a fleet, and of one bag alone."""
+    from servovalve_twin.cli import main
+    assert main(['diagnose', '@paper_HD', '--faults', 'leakage_growth,supply_loss',
+                 '--json', str(tmp_path / 'one.json')]) == 0
+    code = main(['diagnose', '@paper_HD', str(tmp_path / 'nosuch'), '@paper_HD', '--faults',
+                 'leakage_growth,supply_loss', '--json', str(tmp_path / 'fleet'), *extra])
+    return code, json.loads((tmp_path / 'one.json').read_text())
+
+
+def _check_fleet(tmp_path, code, one):
+    out = tmp_path / 'fleet'
+    assert code == 2                                   # one bag's error is the fleet's code
+    summary = json.loads((out / 'summary.json').read_text())
+    assert summary['bags'] == 3 and [r.get('json') for r in summary['diagnosed']] == [
+        '000_paper_HD.json', None, '002_paper_HD.json']
+    assert 'no bag at' in summary['diagnosed'][1]['error']
+    for name in ('000_paper_HD.json', '002_paper_HD.json'):
+        assert json.loads((out / name).read_text()) == one     # as diagnosed alone
+
+
+def test_a_fleet_of_bags_is_diagnosed_each_as_alone(tmp_path, capsys):
+    """diagnose BAG1 BAG2 ... --json DIR on two processes: one JSON per bag, each the one
+    diagnose gives that bag alone; a bag that is none is its own error line, the others go
+    on; summary.json in the bags' order."""
+    code, one = _fleet(tmp_path, '--workers', '2')
+    _check_fleet(tmp_path, code, one)
+    err = capsys.readouterr().err
+    assert 'nosuch: error: no bag at' in err
+
+
+@pytest.mark.slow
+def test_a_fleet_of_bags_on_a_dask_cluster(tmp_path):
+    import distributed
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        code, one = _fleet(tmp_path, '--scheduler', cluster.scheduler_address)
+    _check_fleet(tmp_path, code, one)
