@@ -27,8 +27,12 @@ from pathlib import Path
 from .jitcache import (PACKAGE_DIR, PREFIX, _module, _stamped, aot_loop, cpu_tag,  # noqa: F401
                        export_name, module_name)
 
-#: the loops compiled: (kind, sensor variants)
-KINDS = {'steps': (False, True), 'fleet': (False,)}
+#: the loops compiled: (kind, sensor variants). 'tick': one control period of the ROS plant
+#: (:func:`~.physics.plant.run_tick`); 'monitor': the monitor's rows
+#: (:func:`~.prognostics.monitor_loop.monitor_rows`) -- without them a standalone plant or
+#: monitor node compiled (or loaded numba) after saying it had started, and the first
+#: ``run --monitor SQ`` compiled for ~7.5 s
+KINDS = {'steps': (False, True), 'fleet': (False,), 'tick': (False,), 'monitor': (False,)}
 
 
 def loop_signature(kind: str, model_id: int, sensed: bool = False):
@@ -46,6 +50,17 @@ def loop_signature(kind: str, model_id: int, sensed: bool = False):
     model = next(m for m in VALVE_MODELS.values() if m.id == model_id)
     inputs = np.zeros((3, 8))[:, :4]            # simulate's input rows: views of one buffer
     kern = np.concatenate([model.kernel_array(DEFAULTS)])
+    if kind == 'tick':
+        args = (0, np.zeros(S_SIZE), model.initial_state(DEFAULTS), kern, 0.0, 0.0, 0.0, 0,
+                np.zeros(4))
+        return typeof(0)(*(typeof(a) for a in args))
+    if kind == 'monitor':
+        from .prognostics.monitor_loop import OUT_COLUMNS as MON_OUT
+        from .prognostics.monitor_loop import U_COLUMNS, W_SIZE
+        args = (0, np.zeros(S_SIZE), model.initial_state(DEFAULTS), kern, 0,
+                np.zeros((2, len(U_COLUMNS))), np.zeros(W_SIZE), np.zeros((3, 2)),
+                np.zeros((2, len(MON_OUT))), np.zeros(2, dtype=np.int8), False)
+        return typeof(0)(*(typeof(a) for a in args))
     if kind == 'fleet':
         args = (np.zeros((2, S_SIZE)), np.stack([model.initial_state(DEFAULTS)] * 2),
                 np.empty((2, 1), dtype=kern.dtype), np.zeros((2, 1), dtype=np.int64),
@@ -68,8 +83,9 @@ def build(dest: Path = PACKAGE_DIR, model_ids=None) -> Path:
     import warnings
 
     from .physics.fleet import jit_run_fleet_for
-    from .physics.plant import jit_run_steps_for
-    from .physics.valves import VALVE_MODELS
+    from .physics.plant import jit_run_steps_for, run_tick
+    from .prognostics.monitor_loop import monitor_rows
+    from .physics.valves import MONITOR_MODEL_NAMES, VALVE_MODELS
     ids = sorted(m.id for m in VALVE_MODELS.values()) if model_ids is None else model_ids
     with warnings.catch_warnings():
         # numba.pycc is marked for deprecation (since 0.57, still there in 0.68): used while it
@@ -81,9 +97,13 @@ def build(dest: Path = PACKAGE_DIR, model_ids=None) -> Path:
     cc.verbose = False
     if cpu_tag():
         cc.target_cpu = 'host'          # the processor the name's tag stands for
-    jit = {'steps': jit_run_steps_for, 'fleet': lambda mid, sensed: jit_run_fleet_for(mid)}
+    jit = {'steps': jit_run_steps_for, 'fleet': lambda mid, sensed: jit_run_fleet_for(mid),
+           'tick': lambda mid, sensed: run_tick, 'monitor': lambda mid, sensed: monitor_rows}
+    monitors = {m.id for m in VALVE_MODELS.values() if m.name in MONITOR_MODEL_NAMES}
     for mid in ids:
         for kind, variants in KINDS.items():
+            if kind == 'monitor' and mid not in monitors:
+                continue                    # (HD is no monitor model)
             for sensed in variants:
                 cc.export(export_name(kind, mid, sensed), loop_signature(kind, mid, sensed))(
                     jit[kind](mid, sensed).py_func)

@@ -27,17 +27,24 @@ from pathlib import Path
 
 _PHYSICS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'physics')
 _THIS_FILE = os.path.abspath(__file__)
+#: the sources outside physics/ the ahead-of-time module is made from (the monitor's loop,
+#: which calls the physics' tick, and the builder, which states every loop's signature): in its
+#: stamp, so that an edit of them renames it
+AOT_SOURCES = tuple(os.path.join(os.path.dirname(_THIS_FILE), *p)
+                    for p in (('prognostics', 'monitor_loop.py'), ('aot.py',)))
 
 
 @functools.lru_cache(maxsize=None)
 def physics_stamp() -> bytes:
-    """SHA-256 over the relative names and contents of every ``.py`` file under physics/, and
-    of this file (it holds the compile options: an edit of them must recompile too): the name
-    of the ahead-of-time module of the step loops (:mod:`~servovalve_twin.aot`), which compiles
-    physics only. The JIT's disk cache is keyed per function, :func:`source_stamp`."""
+    """SHA-256 over the relative names and contents of every ``.py`` file under physics/, of
+    the monitor's compiled loop (:data:`AOT_SOURCES`: the module compiles it too) and of this
+    file (it holds the compile options: an edit of them must recompile too): the name of the
+    ahead-of-time module of the step loops (:mod:`~servovalve_twin.aot`). The JIT's disk cache
+    is keyed per function, :func:`source_stamp`."""
     h = hashlib.sha256()
-    with open(_THIS_FILE, 'rb') as f:
-        h.update(f.read())
+    for path in (_THIS_FILE, *AOT_SOURCES):
+        with open(path, 'rb') as f:
+            h.update(f.read())
     for root, dirs, files in os.walk(_PHYSICS_DIR):
         dirs[:] = sorted(d for d in dirs if d != '__pycache__')
         for name in sorted(f for f in files if f.endswith('.py')):

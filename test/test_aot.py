@@ -71,6 +71,45 @@ def test_the_compiled_loops_give_the_jits_bytes(built, model, monkeypatch):
                     ('fleet', mid, False)]
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize('model', MODELS)
+def test_the_compiled_tick_and_monitor_give_the_jits_bytes(built, model, monkeypatch):
+    """The ROS plant's tick (200 control periods of the paper's inputs, a valve model switch
+    midway for SQ and HD) and the monitor's rows (the monitor of this model over the packaged
+    HD bag): the compiled functions' outputs equal the JIT's bit for bit, and ran."""
+    import numpy as np
+    from servovalve_twin.physics.simulate import EhaPlant
+    from servovalve_twin.prognostics.monitor import monitor_run
+    from servovalve_twin.runs import simulate as run
+    used = []
+
+    def compiled(kind, model_id, sensed=False):
+        used.append(kind)
+        return getattr(built, aot.export_name(kind, model_id, sensed))
+
+    def ticks():
+        plant = EhaPlant(model)
+        rows = []
+        for k in range(200):
+            cor = 0.004 * np.sin(k / 20.0)
+            rows.append(plant.tick(cor, 2000.0 * (k > 100), 2e7, 100).copy())
+            rows.append(plant.s.copy())
+        return np.concatenate(rows)
+
+    hd = run('HD', 'paper', ecu_period=1e-3)
+    monitor = model if model != 'HD' else 'SQ'      # (HD is no monitor model)
+    monkeypatch.setattr(jitcache, 'aot_loop', lambda *a, **k: None)
+    want_tick, want_mon = ticks(), monitor_run(hd, monitor)
+    monkeypatch.setattr(jitcache, 'aot_loop', compiled)
+    got_tick, got_mon = ticks(), monitor_run(hd, monitor)
+    assert got_tick.tobytes() == want_tick.tobytes()
+    for name in want_mon.indicators:
+        assert got_mon.indicators[name].tobytes() == want_mon.indicators[name].tobytes()
+        assert got_mon.residuals[name].tobytes() == want_mon.residuals[name].tobytes()
+    assert got_mon.level.tobytes() == want_mon.level.tobytes()
+    assert 'tick' in used and 'monitor' in used
+
+
 def test_a_module_of_other_physics_or_the_jit_asked_for_is_not_used(monkeypatch):
     """The module is named after the physics stamp: after an edit of the physics (another
     stamp) its loops are not those of the source any more and must not be loaded; nor on

@@ -182,6 +182,13 @@ def own_cache_name(fn, tag: str):
     return fn
 
 
+def tick_for(model_id: int):
+    """:func:`run_tick` for a valve model: compiled ahead of time (:mod:`~..aot`) where the
+    module of the current physics is built, else the JIT's -- the same arguments."""
+    from ..jitcache import aot_loop
+    return aot_loop('tick', model_id) or run_tick
+
+
 @jit
 def run_tick(model_id, s, vs, P_arr, cor, fr, psr, n_sub, out):
     """One control period of the ROS plant: ``n_sub`` steps with Cor, FR, PSR held.

@@ -22,7 +22,7 @@ from ..errors import ModelError, ParameterError
 from .ecu import ecu_current_py
 from .faults import params_after as fault_params
 from .params import DEFAULTS, EhaParams, stack_kernels
-from .plant import OUT_COLUMNS, TICK_OUT, TRUTH_COLUMNS, run_steps_for, run_tick
+from .plant import OUT_COLUMNS, TICK_OUT, TRUTH_COLUMNS, run_steps_for, tick_for
 from .scenario import GridBuffers, Scenario, as_scenario
 from .sensors import N_STATE, SENSED, Sensors, sense_block, sensor_table, sensors_from_dict
 from .servovalve import PLANT_STATE, S_DXJ, S_SIZE, S_XJ, S_XS
@@ -198,7 +198,8 @@ def valve_response(model_id: int, s: np.ndarray, vs: np.ndarray, kernel_arr: np.
     copies of the states: the run continues as if it had not been asked (a valve's warm start
     and counters stay those of its integration steps)."""
     out = np.full(len(TICK_OUT), np.nan)
-    run_tick(model_id, s.copy(), vs.copy(), kernel_arr, 0.0, float(fr), float(psr), 0, out)
+    tick_for(model_id)(model_id, s.copy(), vs.copy(), kernel_arr, 0.0, float(fr), float(psr), 0,
+                       out)
     return out
 
 
@@ -215,6 +216,7 @@ class EhaPlant:
         self.model = get_valve_model(valve_model)
         self._kernel = self.model.kernel(self.params)
         self._kernel_arr = self.model.kernel_array(self.params)
+        self._tick = tick_for(self.model.id)
         self.s = np.zeros(S_SIZE)
         self.vs = self.model.initial_state(self.params)
         self.last = np.full(len(TICK_OUT), np.nan)
@@ -265,6 +267,7 @@ class EhaPlant:
         self.model = new
         self._kernel = new.kernel(self.params)
         self._kernel_arr = new.kernel_array(self.params)
+        self._tick = tick_for(new.id)
 
     def set_params(self, params: EhaParams) -> None:
         """Continue with new parameters (a fault, a retune); the state is kept."""
@@ -285,8 +288,8 @@ class EhaPlant:
             for label, v in (('Cor', cor), ('FR', fr), ('PSR', psr)):
                 if not math.isfinite(v):
                     raise ModelError(f'{label} must be finite, got {v!r}')
-        failed = run_tick(self.model.id, self.s, self.vs, self._kernel_arr, float(cor), float(fr),
-                          float(psr), int(n_sub), self.last)
+        failed = self._tick(self.model.id, self.s, self.vs, self._kernel_arr, float(cor),
+                            float(fr), float(psr), int(n_sub), self.last)
         if failed >= 0:
             raise ModelError(f'valve model {self.model.name} failed to converge')
         return self.last        # P1, P2: NaN for a model without ports (its state holds NaN)
@@ -298,7 +301,7 @@ class EhaPlant:
     def compile(self) -> None:
         """Compile the tick loop for the current model now (numba compiles on first call),
         on scratch copies of the state: the first real tick then costs what every tick costs."""
-        run_tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
+        self._tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
                  self.params.PSRN, 1, np.zeros(len(TICK_OUT)))
 
     def diagnostics(self) -> dict[str, Any]:

@@ -36,6 +36,7 @@ from ..physics.valves import get_monitor_model
 from .algorithm import Algorithm, Health
 from .monitor_loop import (DONE, OUT_COLUMNS, U_COLUMNS, W_BAD_COL, W_BAD_ROW, W_BOUND,
                            W_DROPPED, W_GOOD, W_LAST_OUT, W_LEVEL, W_THR, monitor_rows,
+                           monitor_rows_for,
                            new_state, reset_window)
 
 RESIDUALS = MEASURED
@@ -299,8 +300,12 @@ class MonitorAlgorithm(Algorithm):
         w = self._w
         dropped = w[W_DROPPED]
         p = self.plant
-        r = monitor_rows(p.model.id, p.s, p.vs, p._kernel_arr, self.n_sub, u, w, self._ring,
-                         out, level, stop_on_change)
+        rows = monitor_rows_for(p.model.id)
+        if rows is not monitor_rows and not (u.flags.c_contiguous and out.flags.c_contiguous
+                                             and level.flags.c_contiguous):
+            rows = monitor_rows        # (the compiled module takes the layouts it was built for)
+        r = rows(p.model.id, p.s, p.vs, p._kernel_arr, self.n_sub, u, w, self._ring, out,
+                 level, stop_on_change)
         if r < DONE:
             raise ModelError(f'monitor model {p.model.name} failed to converge at '
                              f't = {t[-2 - r]:.3f} s')

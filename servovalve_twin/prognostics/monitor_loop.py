@@ -75,6 +75,13 @@ def reset_window(w: np.ndarray, ring: np.ndarray, thresholds) -> None:
 DONE = -1
 
 
+def monitor_rows_for(model_id: int):
+    """:func:`monitor_rows` for a monitor model: compiled ahead of time (:mod:`~..aot`) where
+    the module of the current sources is built, else the JIT's -- the same arguments."""
+    from ..jitcache import aot_loop
+    return aot_loop('monitor', model_id) or monitor_rows
+
+
 @jit
 def monitor_rows(model_id, s, vs, P_arr, n_sub, u, w, ring, out, level, stop_on_change):
     """Advance the monitor over the rows of ``u`` (:data:`U_COLUMNS`), writing
