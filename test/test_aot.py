@@ -74,9 +74,9 @@ def test_the_compiled_loops_give_the_jits_bytes(built, model, monkeypatch):
 @pytest.mark.slow
 @pytest.mark.parametrize('model', MODELS)
 def test_the_compiled_tick_and_monitor_give_the_jits_bytes(built, model, monkeypatch):
-    """The ROS plant's tick (200 control periods of the paper's inputs, a valve model switch
-    midway for SQ and HD) and the monitor's rows (the monitor of this model over the packaged
-    HD bag): the compiled functions' outputs equal the JIT's bit for bit, and ran."""
+    """The ROS plant's tick (200 control periods of a swinging current, a load from the 100th)
+    and the monitor's rows (the monitor of this model -- SQ for HD -- over the packaged HD
+    flight): the compiled functions' outputs equal the JIT's bit for bit, and ran."""
     import numpy as np
     from servovalve_twin.physics.simulate import EhaPlant
     from servovalve_twin.prognostics.monitor import monitor_run
