@@ -43,8 +43,10 @@ def physics_stamp() -> bytes:
     is keyed per function, :func:`source_stamp`."""
     h = hashlib.sha256()
     for path in (_THIS_FILE, *AOT_SOURCES):
-        with open(path, 'rb') as f:
-            h.update(f.read())
+        # (a copy that carries the physics alone -- the FMU's -- has no module to name)
+        if os.path.isfile(path):
+            with open(path, 'rb') as f:
+                h.update(f.read())
     for root, dirs, files in os.walk(_PHYSICS_DIR):
         dirs[:] = sorted(d for d in dirs if d != '__pycache__')
         for name in sorted(f for f in files if f.endswith('.py')):

@@ -312,3 +312,17 @@ def test_a_planted_climb_or_circle_is_seen(tmp_path):
     writer.write_text(writer.read_text() + '\nfrom . import reader  # noqa\n')
     assert ['servovalve_twin.bag.reader', 'servovalve_twin.bag.writer'] in _circles(
         _module_graph(tmp_path))
+
+
+def test_the_ros_tier_is_chosen_by_folder_and_fixture_not_by_a_word():
+    """`-m ros` holds test/ros/ and the tests that take a ROS fixture (or are marked by
+    hand); a module that only names rclpy (the physics test that blocks it) is not in it --
+    a word search put it there."""
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, '-m', 'pytest', '--collect-only', '-q', '-m', 'ros',
+                        '-o', 'addopts=', 'test/physics/test_physics_without_ros.py',
+                        'test/ros/test_replay.py', 'test/apps/test_diagnose.py'],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    ids = [ln for ln in r.stdout.splitlines() if '::' in ln]
+    assert ids and all(i.startswith('test/ros/test_replay.py::') for i in ids), r.stdout

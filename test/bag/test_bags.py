@@ -221,6 +221,7 @@ def _wait_progress(proc, until_s):
     return t
 
 
+@pytest.mark.ros
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_interrupted_run_leaves_a_readable_bag(tmp_path, sig):
     bag = tmp_path / 'interrupted'
@@ -235,6 +236,7 @@ def test_interrupted_run_leaves_a_readable_bag(tmp_path, sig):
     assert (bag / 'metadata.yaml').is_file()
 
 
+@pytest.mark.ros
 def test_killed_run_is_recovered_by_reindex(tmp_path):
     bag = tmp_path / 'killed'
     proc = _spawn_run(tmp_path, bag)

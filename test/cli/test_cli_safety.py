@@ -189,6 +189,7 @@ def test_an_executables_bad_parameter_is_one_line_and_exit_2(tmp_path, executabl
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.ros
 def test_nodes_refuse_misspelt_parameters_and_accept_integers_for_doubles(tmp_path):
     import subprocess
     from conftest import console_script
@@ -348,6 +349,7 @@ def test_characteristic_leaves_points_without_steady_state_blank(tmp_path, capsy
     assert (tmp_path / 'c.png').stat().st_size > 1000
 
 
+@pytest.mark.ros
 def test_run_with_a_monitor_prints_its_verdict(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(['run', '--valve-model', 'HD', '--monitor', 'SQ', '--no-bag']) == 0
@@ -424,6 +426,7 @@ def test_progress_shows_on_a_terminal_only():
     assert b'sweep' in out and b'run' in out
 
 
+@pytest.mark.ros
 def test_replay_into_an_existing_directory_needs_overwrite(tmp_path, capsys):
     out = tmp_path / 'r'
     assert main(['replay', '@paper_HD', '--valve-model', 'C2', '--out', str(out)]) == 0

@@ -81,6 +81,7 @@ TOUR = [cmd for n, cmd in command_lines(ROOT / 'README.md')
         and ' report' not in cmd]
 
 
+@pytest.mark.ros
 @pytest.mark.slow
 def test_the_readme_tour_runs_as_printed(tmp_path):
     """simulate, compare, run (bags/hd), diagnose of that bag, the limits of the paper

@@ -110,6 +110,7 @@ def test_algorithm_outputs_are_recorded_and_a_sweep_scores_them(live, tmp_path):
     assert 'peak_leak_index' in rows[0] and rows[0]['peak_leak_index'] < 1.85
 
 
+@pytest.mark.ros
 def test_cli_run_evaluate_and_sweep_with_an_algorithm(tmp_path, capsys, monkeypatch):
     monkeypatch.syspath_prepend(str(EXAMPLE))
     bag = tmp_path / 'b'
