@@ -32,7 +32,7 @@ setup(
                     # servovalve-twin fmu: an FMI 2.0 co-simulation FMU of the actuator
                     'fmu': ['pythonfmu'],
                     'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets', 'progpy',
-                             'pythonfmu', 'fmpy']},
+                             'pythonfmu', 'fmpy', 'ruff']},
     python_requires='>=3.10',
     zip_safe=False,
     maintainer='servovalve_twin maintainers',

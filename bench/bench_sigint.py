@@ -79,8 +79,8 @@ def main() -> int:
     from conftest import console_script
     with tempfile.TemporaryDirectory() as d:
         table = executables(Path(d))
-        print(f'| executable | SIGINT -> exit, median [s] | max [s] | exit codes | '
-              f'second SIGINT: exit code |')
+        print('| executable | SIGINT -> exit, median [s] | max [s] | exit codes | '
+              'second SIGINT: exit code |')
         print('|---|---|---|---|---|')
         for name, (a, ready) in table.items():
             exe = console_script(name)

@@ -56,7 +56,7 @@ def main() -> None:
                   f'{len(cases) / wall:.0f} | {limit:.0f} | {len(cases) / wall / limit:.0%} |')
     out = tempfile.mkdtemp()
     exe = os.path.join(os.path.dirname(sys.executable), 'servovalve-twin')
-    cmd = [exe, 'sweep', '--fault', f'leakage_growth:10', '--repeats', str(args.runs // 2),
+    cmd = [exe, 'sweep', '--fault', 'leakage_growth:10', '--repeats', str(args.runs // 2),
            '--nominal', str(args.runs // 2), '--vary', 'M=0.1']
     walls = []
     for i in range(3):

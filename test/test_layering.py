@@ -326,3 +326,16 @@ def test_the_ros_tier_is_chosen_by_folder_and_fixture_not_by_a_word():
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     ids = [ln for ln in r.stdout.splitlines() if '::' in ln]
     assert ids and all(i.startswith('test/ros/test_replay.py::') for i in ids), r.stdout
+
+
+def test_the_code_lints_clean():
+    """ruff with pyflakes' rules (unused and undefined names, f-strings without fields) and
+    syntax errors, over the package, the tests and the benches: 0 findings (6 had piled up
+    unseen: an unused import in the plant node among them)."""
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, '-m', 'ruff', 'check', '--select', 'F,E9',
+                        '--line-length', '100', '--output-format', 'concise', '--no-cache',
+                        'servovalve_twin', 'test', 'bench'],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr

@@ -9,7 +9,7 @@ from typing import Any, Sequence
 from rcl_interfaces.msg import ParameterDescriptor
 
 from ..bag.cdr import encode_jack_state
-from ..errors import ModelError, TwinError
+from ..errors import ModelError
 from ..physics.params import EhaParams
 from ..physics.simulate import EhaPlant, steps_per
 from ..physics.valves import VALVE_MODEL_NAMES, get_valve_model

@@ -187,7 +187,6 @@ def _importer(fmu, r, tmp_path, extra_path=None):
     import json
     import os
     import subprocess
-    from conftest import ROOT
     py = _fmu_python()
     env = {k: v for k, v in os.environ.items() if k not in ('PYTHONPATH', 'VIRTUAL_ENV')}
     if extra_path:

@@ -169,7 +169,6 @@ def test_what_a_flight_reveals_is_flown_not_assumed(capsys):
     """A hold at rest without load reveals a null bias (the loop must correct it) and none of
     the faults that need motion, pressure or load to show; the paper's flight reveals every
     one, at the packaged thresholds. The command prints the table under the thresholds."""
-    from servovalve_twin.cli import main
     from servovalve_twin.prognostics.monitor import HealthConfig, calibrated_thresholds
     from servovalve_twin.prognostics.thresholds import format_revealed, revealed
     cfg = HealthConfig(**calibrated_thresholds('SQ'))
