@@ -161,7 +161,7 @@ def _on_cluster(fn, items: list, scheduler: str, batch: int) -> Iterator[Any]:
         while pending:
             try:
                 done, pending = dask_wait(pending, timeout=5, return_when='FIRST_COMPLETED')
-            except (DaskTimeout, TimeoutError):
+            except (DaskTimeout, TimeoutError):     # (an OSError too: caught first)
                 # a cluster left without any worker (they died and nothing restarts them) is
                 # an error after NO_WORKER_S, not a wait for ever
                 if client.scheduler_info().get('workers'):
@@ -173,6 +173,10 @@ def _on_cluster(fn, items: list, scheduler: str, batch: int) -> Iterator[Any]:
                                     f'{NO_WORKER_S:g} s: start workers, or run locally '
                                     '(without --scheduler)') from None
                 continue
+            except (CancelledError, OSError) as exc:
+                # the scheduler went away while waiting (its comm closed)
+                raise SchedulerLost(f'lost the Dask scheduler at {scheduler} '
+                                    f'({type(exc).__name__})') from None
             for f in done:
                 try:
                     yield from f.result()

@@ -112,7 +112,9 @@ class GraphClock:
     def other_owners(self) -> list[str]:
         """The nodes besides this twin's that publish /clock (a graph has one owner)."""
         me = (self.node.get_name(), self.node.get_namespace())
-        return sorted(f'{i.node_namespace.rstrip("/")}/{i.node_name}'
+        # (a publisher discovered before its node's name says _NODE_NAME_UNKNOWN_)
+        return sorted('a node not named yet' if 'UNKNOWN' in i.node_name else
+                      f'{i.node_namespace.rstrip("/")}/{i.node_name}'
                       for i in self.node.get_publishers_info_by_topic('/clock')
                       if (i.node_name, i.node_namespace) != me)
 

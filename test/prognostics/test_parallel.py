@@ -66,3 +66,21 @@ def test_an_unreachable_or_malformed_scheduler_is_one_line():
         list(map_unordered(math.sqrt, [1.0], scheduler='tcp://127.0.0.1:9'))
     with pytest.raises(TwinError, match='is not an address'):
         parallel.check_scheduler('::::')
+
+
+@pytest.mark.slow
+def test_a_scheduler_lost_midway_is_one_error_not_a_traceback():
+    """The cluster goes away while its tasks run: SchedulerLost (a TwinError: one line, the
+    items finished before kept by the caller), not FutureCancelledError's traceback."""
+    import threading
+    import distributed
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                       dashboard_address=None)
+    stopper = threading.Timer(3.0, cluster.close)
+    stopper.start()
+    try:
+        with pytest.raises(parallel.SchedulerLost, match='lost the Dask scheduler'):
+            list(map_unordered(time.sleep, [1.0] * 30, scheduler=cluster.scheduler_address))
+    finally:
+        stopper.join()
+        cluster.close()
