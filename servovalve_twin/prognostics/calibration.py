@@ -669,9 +669,8 @@ def gof_p_value(cal: Mapping[str, Any], rms: float, past: bool = False) -> float
     return p_value(gof_reference(cal, past), rms)
 
 
-__all__ = ['alpha_of', 'calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen', 'fit_calibration',
-           'gof_reference', 'past_correction',
-           'fault_calibration', 'resolve_entry', 'groups_of', 'POOLED', 'bias_at', 'unit_signals', 'sensor_warnings', 'spread_of',
-           'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at', 'end_level',
-           'past_level', 'past_by',
-           'to_g', 'from_g']
+__all__ = ['alpha_of', 'calibration_jobs', 'onset_jobs', 'widen_needed', 'onset_widen',
+           'fit_calibration', 'gof_reference', 'past_correction', 'fault_calibration',
+           'resolve_entry', 'groups_of', 'POOLED', 'bias_at', 'unit_signals', 'sensor_warnings',
+           'spread_of', 'load_calibration', 'calibration_for', 'gof_p_value', 'severity_at',
+           'end_level', 'past_level', 'past_by', 'to_g', 'from_g']

@@ -22,8 +22,8 @@ the level, :func:`z_of`):
   x)^2)`` at a distance ``x`` past it.
 
 Groups (Mondrian conformal prediction) and their fallback order are declared where the
-calibration is fitted and read (:data:`.calibration.GROUPS`). A p-value of the same exchangeability,
-:func:`p_value`, is the goodness-of-fit test's.
+calibration is fitted and read (:func:`.calibration.groups_of`). A p-value of the same
+exchangeability, :func:`p_value`, is the goodness-of-fit test's.
 """
 
 from __future__ import annotations
