@@ -688,15 +688,15 @@ def test_a_second_clock_owner_is_refused_and_the_first_runs_on(ros_context, tmp_
     from servovalve_twin.twin import graph
     raw = {**SHORT, 'duration': 40.0}
     first = _namespaced_twin(tmp_path, 'left', raw, '--real-time-factor', '1')
-    started = time.monotonic()
     watcher = Node('watcher', context=ros_context)
     try:
-        deadline = started + 60
+        deadline = time.monotonic() + 60
         while not watcher.get_publishers_info_by_topic('/clock'):
             assert time.monotonic() < deadline and first.poll() is None
             time.sleep(0.05)
-        # the first owner past its own newcomer's grace: it is the one already running
-        time.sleep(max(0.0, graph.NEWCOMER_S + 0.5 - (time.monotonic() - started)))
+        # its /clock seen: its clock (and its grace) began before; past the grace it is the
+        # owner already running (timed from here, not from its start: imports take seconds)
+        time.sleep(graph.NEWCOMER_S + 0.5)
         second = _namespaced_twin(tmp_path, 'right', {**SHORT, 'duration': 30.0},
                                   '--real-time-factor', '1')
         out, err = second.communicate(timeout=120)
