@@ -156,6 +156,20 @@ def place_new(built: str | Path, path: str | Path) -> Path:
     return path
 
 
+def discard_directory(directory: Path, created: bool) -> None:
+    """Remove what a command wrote into ``directory``, which was new or empty when it began
+    (so every regular file in it is the command's), and the directory itself if the command
+    created it and nothing else appeared there: an output directory is whole or absent."""
+    for f in directory.iterdir() if directory.is_dir() else ():
+        if f.is_file() and not f.is_symlink():
+            f.unlink()
+    if created:
+        try:
+            directory.rmdir()
+        except OSError:
+            pass                        # something else was put there meanwhile: keep it
+
+
 def write_new(path: Path, text: str) -> None:
     """``text`` into a new file (never an existing one, nor through a symbolic link); on
     any failure the half-written file, ours, is removed."""

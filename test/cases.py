@@ -272,3 +272,36 @@ def listing(directory: Path) -> list[str]:
     """Every path under ``directory``, relative (links not followed): what a refusal must
     leave as it was."""
     return sorted(str(p.relative_to(directory)) for p in directory.rglob('*'))
+
+
+#: a user's algorithms that misbehave, as a module's source: a step that never returns (from
+#: 5 ms), one that ends the process (os._exit skips every handler), one slow (2 ms a step) but
+#: returning -- for the hosts' watchdog and exit guard (evaluate, run)
+HOSTILE_ALGORITHMS = '''
+import os
+import time
+from servovalve_twin.prognostics.algorithm import Algorithm
+
+
+class Stuck(Algorithm):
+    inputs = ('xj',)
+    outputs = ('x',)
+
+    def step(self, t, u):
+        if t >= 0.005:
+            time.sleep(1e6)
+        return {'x': u['xj']}
+
+
+class Exiting(Stuck):
+    def step(self, t, u):
+        if t >= 0.005:
+            os._exit(0)
+        return {'x': u['xj']}
+
+
+class Waiting(Stuck):
+    def step(self, t, u):
+        time.sleep(0.002)
+        return {'x': u['xj']}
+'''

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 
-from ..outputs import write_new
+from ..outputs import discard_directory, write_new
 from ..physics.characteristic import characteristic
 from ..physics.params import make_params
 from ..physics.signals import MEASURED
@@ -68,16 +68,9 @@ def make_report(*, out_dir: Path, overrides: Mapping[str, Any] | None = None) ->
                 f'it).\n\n{tables}\n')
         write_new(out_dir / 'report.md', page)
     except BaseException:
-        # a report is whole or absent: the directory was new or empty, so all in it is ours
-        # (a full disk left an empty directory, or figures without their page)
-        for f in out_dir.iterdir() if out_dir.is_dir() else ():
-            if f.is_file() and not f.is_symlink():
-                f.unlink()
-        if created:
-            try:
-                out_dir.rmdir()
-            except OSError:
-                pass
+        # a report is whole or absent (a full disk left an empty directory, or figures
+        # without their page)
+        discard_directory(out_dir, created)
         raise
     return page
 

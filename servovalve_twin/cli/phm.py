@@ -148,7 +148,7 @@ def _diagnose_fleet(args, options) -> int:
     Ctrl-C too)."""
     from ..apps.compare import write_json
     from ..apps.diagnose import diagnose_fleet_member
-    from ..prognostics.parallel import (Signalled, check_scheduler, map_unordered,
+    from ..prognostics.parallel import (check_scheduler, interrupt_code, map_unordered,
                                         restore_signals, stop_on_signals)
     if args.plot:
         raise TwinError('--plot goes with one bag')
@@ -182,7 +182,7 @@ def _diagnose_fleet(args, options) -> int:
                              interval=j['interval'], confidence=j['confidence'],
                              warnings=len(j['warnings'])))
     except KeyboardInterrupt as exc:
-        code = 128 + exc.signum if isinstance(exc, Signalled) else 130
+        code = interrupt_code(exc)
         print(f'servovalve-twin diagnose: interrupted after {len(rows)} of {len(jobs)} bags; '
               f'{out} holds theirs', file=sys.stderr)
     finally:
@@ -286,7 +286,7 @@ class CalibrateDiagnosis(Command):
             raise TwinError(f'--workers must be >= 1, got {args.workers}')
         if not 0 <= args.seed < 2 ** 63:
             raise TwinError(f'--seed must be an integer in [0, 2**63 - 1], got {args.seed}')
-        from ..prognostics.parallel import (Signalled, check_scheduler, restore_signals,
+        from ..prognostics.parallel import (check_scheduler, interrupt_code, restore_signals,
                                             stop_on_signals)
         if args.scheduler:
             check_scheduler(args.scheduler)
@@ -302,7 +302,7 @@ class CalibrateDiagnosis(Command):
         except KeyboardInterrupt as exc:
             print('servovalve-twin calibrate-diagnosis: interrupted; the finished units are '
                   'kept: run the same command again to resume', file=sys.stderr)
-            return 128 + exc.signum if isinstance(exc, Signalled) else 130
+            return interrupt_code(exc)
         finally:
             restore_signals(old)
         print(_calibration_summary(cal))

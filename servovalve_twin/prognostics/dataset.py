@@ -20,8 +20,8 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import TwinError
-from ..outputs import DISK_FULL, output_file, output_path, write_failed
-from .parallel import SchedulerLost
+from ..outputs import DISK_FULL, discard_directory, output_file, output_path, write_failed
+from .parallel import SchedulerLost, interrupt_code
 
 
 class SweepStopped(TwinError):
@@ -71,8 +71,8 @@ def write_dataset(out: Path, results: Iterable[Mapping[str, Any]], total: int | 
                         np.lib.format.write_array(fh, np.asanyarray(v), allow_pickle=False)
     except KeyboardInterrupt as exc:
         # Ctrl-C, or SIGTERM / SIGHUP (:class:`.parallel.Signalled`): 128 + the signal
-        signum = getattr(exc, 'signum', 2)
-        stopped = ('interrupted' if signum == 2 else f'stopped by {exc}', 128 + signum)
+        code = interrupt_code(exc)
+        stopped = ('interrupted' if code == 130 else f'stopped by {exc}', code)
     except BrokenProcessPool:
         stopped = ('a worker process died (killed?)', 2)
     except SchedulerLost as exc:
@@ -96,13 +96,9 @@ def write_dataset(out: Path, results: Iterable[Mapping[str, Any]], total: int | 
             npz_part.replace(out / 'traces.npz')
         summary = _complete(out, rows)
     except (OSError, TwinError) as exc:
-        # a dataset is whole or absent: the directory was new or empty, so all in it is ours
-        # (a full disk left a .dataset.csv.part and a .traces.npz.part)
-        for f in out.iterdir():
-            if f.is_file() and not f.is_symlink():
-                f.unlink()
-        if created:
-            out.rmdir()
+        # a dataset is whole or absent (a full disk left a .dataset.csv.part and a
+        # .traces.npz.part)
+        discard_directory(out, created)
         if isinstance(exc, OSError):
             raise write_failed(out, exc, 'nothing of the sweep was kept') from None
         raise TwinError(f'{exc}; nothing of the sweep was kept') from None

@@ -190,6 +190,7 @@ class MonitorAlgorithm(Algorithm):
                 else dataclasses.asdict(HealthConfig.for_model(self.params['monitor_model'])))
         self.config = HealthConfig(**{**base, **given})
         self.plant = None
+        self._rows = (None, monitor_rows)           # (monitor model id, its rows function)
         self._w = self._ring = None
         # one row in, one row out: preallocated, a tick allocates no array
         self._u1 = np.zeros((1, len(U_COLUMNS)))
@@ -300,7 +301,10 @@ class MonitorAlgorithm(Algorithm):
         w = self._w
         dropped = w[W_DROPPED]
         p = self.plant
-        rows = monitor_rows_for(p.model.id)
+        # (looked up once per monitor model, not once a tick: step() runs this every tick)
+        if self._rows[0] != p.model.id:
+            self._rows = (p.model.id, monitor_rows_for(p.model.id))
+        rows = self._rows[1]
         if rows is not monitor_rows and not (u.flags.c_contiguous and out.flags.c_contiguous
                                              and level.flags.c_contiguous):
             rows = monitor_rows        # (the compiled module takes the layouts it was built for)

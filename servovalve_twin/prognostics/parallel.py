@@ -40,6 +40,12 @@ class Signalled(KeyboardInterrupt):
         self.signum = signum
 
 
+def interrupt_code(exc: KeyboardInterrupt) -> int:
+    """The exit code of work stopped by ``exc``: 128 + the signal (130 for Ctrl-C, 143 for
+    SIGTERM, 129 for SIGHUP)."""
+    return 128 + (exc.signum if isinstance(exc, Signalled) else signal.SIGINT)
+
+
 def _raise_signalled(signum, _frame):
     raise Signalled(signum)
 
@@ -189,4 +195,4 @@ def _on_cluster(fn, items: list, scheduler: str, batch: int) -> Iterator[Any]:
 
 
 __all__ = ['map_unordered', 'connect', 'check_scheduler', 'worker_init', 'stop_on_signals',
-           'restore_signals', 'Signalled', 'SchedulerLost', 'NO_WORKER_S']
+           'restore_signals', 'interrupt_code', 'Signalled', 'SchedulerLost', 'NO_WORKER_S']

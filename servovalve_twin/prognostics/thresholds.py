@@ -61,6 +61,20 @@ def monitor_cal_flights() -> dict[str, Any]:
     return flights
 
 
+def _measured_unit(flown, design_scenario, rng: np.random.Generator, spread: float):
+    """One HD unit flying ``flown`` (a Scenario): its nuisance drawn within ``spread`` x the
+    documented spread, the scenario's parameters of ``design_scenario`` on it, 1 ms ECU,
+    measured with the documented noise -- rng consumed in that order."""
+    from ..physics.params import DEFAULTS
+    from .calibration import NOISE, VARY
+    from .sweep import draw_nuisance, measured
+    unit = DEFAULTS.replace(**draw_nuisance(rng, {k: v * spread for k, v in VARY.items()},
+                                            DEFAULTS))
+    run = simulate('HD', flown, params=effective_params(design_scenario, None, unit),
+                   ecu_period=1e-3)
+    return dataclasses.replace(run, signals=measured(run.signals, NOISE, rng))
+
+
 def healthy_peaks(models: Sequence[str], flights: Mapping[str, Any], units: int, seed: int,
                   *, spread: float = 1.5, window: float = 0.05
                   ) -> dict[str, dict[str, list[float]]]:
@@ -68,9 +82,6 @@ def healthy_peaks(models: Sequence[str], flights: Mapping[str, Any], units: int,
     (``units`` per flight, nuisance within ``spread`` x the documented spread, documented
     noise), the monitor stepped as it runs live; each HD run serves every model."""
     from ..config import load_scenario
-    from ..physics.params import DEFAULTS
-    from .calibration import NOISE, VARY
-    from .sweep import draw_nuisance, measured
     rng = np.random.default_rng(seed)
     peaks = {m: {s: [] for s in RESIDUALS} for m in models}
     # thresholds play no part in the peaks: the hand-set ones serve a model not yet calibrated
@@ -79,11 +90,7 @@ def healthy_peaks(models: Sequence[str], flights: Mapping[str, Any], units: int,
         scn = load_scenario(flights[name])
         design = effective_params(scn)
         for _ in range(units):
-            unit = DEFAULTS.replace(**draw_nuisance(
-                rng, {k: v * spread for k, v in VARY.items()}, DEFAULTS))
-            run = simulate('HD', scn, params=effective_params(scn, None, unit),
-                           ecu_period=1e-3)
-            noisy = dataclasses.replace(run, signals=measured(run.signals, NOISE, rng))
+            noisy = _measured_unit(scn, scn, rng, spread)
             for m in models:
                 mon = monitor_run(noisy, m, config, nominal=design)
                 for s in RESIDUALS:
@@ -101,10 +108,7 @@ def revealed(model: str, flights: Mapping[str, Any], config: HealthConfig, units
     no friction, a flight without load no leak."""
     from ..config import load_scenario
     from ..physics.faults import FAULTS
-    from ..physics.params import DEFAULTS
     from ..physics.scenario import scenario_from_dict
-    from .calibration import NOISE, VARY
-    from .sweep import draw_nuisance, measured
     rng = np.random.default_rng(seed)
     out: dict[str, dict[str, list[int]]] = {f: {} for f in FAULTS}
     for name in flights:
@@ -115,11 +119,7 @@ def revealed(model: str, flights: Mapping[str, Any], config: HealthConfig, units
                 {'at': 0.0, 'fault': fault, 'severity': spec.demo}]))
             levels = out[fault].setdefault(name, [])
             for _ in range(units):
-                unit = DEFAULTS.replace(**draw_nuisance(
-                    rng, {k: v * spread for k, v in VARY.items()}, DEFAULTS))
-                run = simulate('HD', faulty, params=effective_params(scn, None, unit),
-                               ecu_period=1e-3)
-                noisy = dataclasses.replace(run, signals=measured(run.signals, NOISE, rng))
+                noisy = _measured_unit(faulty, scn, rng, spread)
                 levels.append(int(monitor_run(noisy, model, config, nominal=design
                                               ).level.max()))
     return out

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from bagmaker import f64, write_bag, write_long_bag
+from cases import HOSTILE_ALGORITHMS
 from servovalve_twin.apps.compare import write_json
 from servovalve_twin.apps.evaluate import evaluate, run_to_json
 from servovalve_twin.bag import reader
@@ -154,37 +155,13 @@ def test_memory_does_not_grow_with_the_bag(tmp_path, monkeypatch):
     assert peaks[1] - peaks[0] < 0.5 * (1 << 20), peaks
 
 
-BLOCKING = '''
-import time
-from servovalve_twin.prognostics.algorithm import Algorithm
-
-
-class Stuck(Algorithm):
-    inputs = ('xj',)
-    outputs = ('x',)
-
-    def step(self, t, u):
-        if t >= 0.005:
-            time.sleep(1e6)             # a step that never returns
-        return {'x': u['xj']}
-
-
-class Exiting(Stuck):
-    def step(self, t, u):
-        if t >= 0.005:
-            import os
-            os._exit(0)                 # ended evaluate with rc 0 and no output
-        return {'x': u['xj']}
-'''
-
-
 def test_an_algorithm_that_blocks_is_stopped_by_the_watchdog(tmp_path, monkeypatch, capsys):
     """A step that blocks (a sleep of 10^6 s at t = 5 ms) held evaluate for ever; a module that
     blocks at import too. With the watchdog's limit at 0.5 s each ends in one line, exit 2."""
     from servovalve_twin.cli import main
     from servovalve_twin.prognostics import algorithm
     monkeypatch.setattr(algorithm, 'STEP_LIMIT_S', 0.5)
-    (tmp_path / 'stuck_alg.py').write_text(BLOCKING)
+    (tmp_path / 'stuck_alg.py').write_text(HOSTILE_ALGORITHMS)
     (tmp_path / 'stuck_import.py').write_text('import time\ntime.sleep(1e6)\n')
     monkeypatch.syspath_prepend(str(tmp_path))
     assert main(['evaluate', '@paper_HD', '--algorithm', 'stuck_alg:Stuck']) == 2

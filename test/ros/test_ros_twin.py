@@ -15,7 +15,7 @@ from rclpy.parameter import Parameter
 from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODEL_NAMES
 from servovalve_twin.twin import Twin, run_twin
-from cases import SHORT
+from cases import HOSTILE_ALGORITHMS, SHORT
 
 
 
@@ -622,37 +622,6 @@ def test_no_live_parameter_value_stops_the_twin(ros_context, tmp_path):
     assert topics['/xj'] == topics['/monitor/residual_xj'] == round(SHORT['duration'] / 1e-3) + 1
 
 
-STUCK_AND_EXITING = '''
-import os
-import re
-import time
-from servovalve_twin.prognostics.algorithm import Algorithm
-
-
-class Stuck(Algorithm):
-    inputs = ('xj',)
-    outputs = ('x',)
-
-    def step(self, t, u):
-        if t >= 0.005:
-            time.sleep(1e6)             # a step that never returns
-        return {'x': u['xj']}
-
-
-class Exiting(Stuck):
-    def step(self, t, u):
-        if t >= 0.005:
-            os._exit(0)                 # ends the process: no handler runs
-        return {'x': u['xj']}
-
-
-class Waiting(Stuck):
-    def step(self, t, u):
-        time.sleep(0.002)              # slow, but every step returns
-        return {'x': u['xj']}
-'''
-
-
 def test_a_user_algorithm_cannot_hang_or_end_the_twin(tmp_path, monkeypatch, capsys):
     """`run` with a user's algorithm whose step blocks (held the run for ever) or calls
     os._exit (rc 0, a bag without metadata.yaml): one line, exit 2, the bag closed and
@@ -662,7 +631,7 @@ def test_a_user_algorithm_cannot_hang_or_end_the_twin(tmp_path, monkeypatch, cap
     from servovalve_twin.cli import main
     from servovalve_twin.prognostics import algorithm
     monkeypatch.setattr(algorithm, 'STEP_LIMIT_S', 0.5)
-    (tmp_path / 'user_algs.py').write_text(STUCK_AND_EXITING)
+    (tmp_path / 'user_algs.py').write_text(HOSTILE_ALGORITHMS)
     monkeypatch.syspath_prepend(str(tmp_path))
     for cls, fragment in (('Stuck', 'algorithm Stuck made no progress for 0.5 s'),
                           ('Exiting', 'algorithm Exiting called os._exit(0)')):
