@@ -4,11 +4,13 @@ calibration never saw -- against the packaged calibration on the same units.
 For each flight x design (``--cases``): ``calibrate-diagnosis`` on it (seeded HD units, seed
 ``--cal-seed``, ``--units`` per fault and level), then test units with other seeds: healthy ones
 (``--healthy`` per case) and each catalog fault at a severity drawn beyond the flight's own
-verdict floor (between the floor's severity x 1.25 in ``g`` and the alarm value; ``--faulty``
-per fault), nuisance within 1.5 x the documented spread and noise 0.5-2 x. Each is diagnosed
+verdict floor (between its detection limit on the flight -- the calibration's
+``revealed_from`` -- or 1.25 x the floor's severity in ``g``, whichever is larger, and the
+alarm value; ``--faulty`` per fault), nuisance within 1.5 x the documented spread and noise 0.5-2 x. Each is diagnosed
 twice with SQ, M and CJ free: with the flight's calibration, and with the packaged one (what a
-user had before). Reported: false alarms on healthy units (a fault named), faults named right,
-and 90 % interval coverage per fault.
+user had before). Reported: false alarms on healthy units (a fault named), faults named right
+above the stated limit, and 90 % interval coverage per fault; the units of faults a flight's
+calibration states it does not reveal, apart.
 
 The flights and designs are this bench's own (no calibration or other bench flies them):
 
@@ -95,21 +97,28 @@ def flight_of(name: str, design: str) -> dict:
 
 
 def test_jobs(cal, healthy: int, faulty: int, seed: int) -> list[tuple]:
-    """(fault or None, severity, unit seed) of the test units."""
-    jobs = [(None, 0.0, unit_seed(seed, None, 0.0, r)) for r in range(healthy)]
+    """(fault or None, severity, unit seed, whether above the stated limit) of the test units.
+    A fault the flight reveals (its calibration's ``revealed_from``) is drawn between that
+    limit (and 1.25 x the verdict floor) and its alarm value, in ``g``: the claim "named above
+    the stated limit"; one it does not reveal, between 1.25 x the floor and the alarm value:
+    reported, not claimed (the calibration said "not revealed")."""
+    jobs = [(None, 0.0, unit_seed(seed, None, 0.0, r), False) for r in range(healthy)]
     u = cal['verdict_fraction']
     for fault in DIAGNOSABLE:
         spec = FAULTS[fault]
         g_alarm = to_g(fault, spec.demo)
+        limit = cal.get('revealed_from', {}).get(fault)
+        lo = min(1.25 * u, 0.9) if limit is None else max(
+            abs(to_g(fault, limit) / g_alarm), min(1.25 * u, 0.9))
         for r in range(faulty):
             k = unit_seed(seed, fault, 1.0, r)
-            frac = np.random.default_rng(k).uniform(min(1.25 * u, 0.9), 1.0)
-            jobs.append((fault, float(from_g(fault, frac * g_alarm)), k))
+            frac = np.random.default_rng(k).uniform(lo, 1.0)
+            jobs.append((fault, float(from_g(fault, frac * g_alarm)), k, limit is not None))
     return jobs
 
 
 def one(args):
-    (fault, sev, seed), flight, design, cal = args
+    (fault, sev, seed, stated), flight, design, cal = args
     sig, truth, _ = unit_signals(fault, 1.0, flight, seed, spread=1.5, design=design,
                                  severity=sev if fault else None)
     out = {}
@@ -121,7 +130,7 @@ def one(args):
         out[how] = dict(named=name, severity=d.best.severity,
                         held=None if iv is None or isinstance(iv, list) else
                         bool(iv[0] <= truth <= iv[1]))
-    return dict(fault=fault, truth=truth, **out)
+    return dict(fault=fault, truth=truth, stated=stated, **out)
 
 
 def main() -> None:
@@ -148,7 +157,8 @@ def main() -> None:
                                      seed=args.cal_seed, workers=args.workers)
         cal_s = time.perf_counter() - tc
         cals[case] = dict(verdict_fraction=cal['verdict_fraction'], seconds=cal_s,
-                          healthy_units=cal['healthy_units'])
+                          healthy_units=cal['healthy_units'],
+                          hidden=[f for f, v in cal['revealed_from'].items() if v is None])
         jobs = [(j, flight, design, cal) for j in test_jobs(cal, args.healthy, args.faulty,
                                                            args.seed)]
         with ProcessPoolExecutor(args.workers) as ex:
@@ -168,29 +178,34 @@ def report(rows, cals, args, wall):
     print(f'cases {args.cases}; calibration {args.units} units per fault and level (seed '
           f'{args.cal_seed}); test units seed {args.seed}: {args.healthy} healthy and '
           f'{args.faulty} per fault per case; {wall:.0f} s')
-    print('\n| case | floor (of the way) | calibration [s] |')
-    print('|---|---|---|')
-    for case, c in cals.items():
-        print(f'| {case} | {c["verdict_fraction"]:.3f} | {c["seconds"]:.0f} |')
-    print('\n| calibration | healthy units named a fault | faults named right | 90 % intervals '
-          'hold the truth |')
+    print('\n| case | floor (of the way) | not revealed | calibration [s] |')
     print('|---|---|---|---|')
+    for case, c in cals.items():
+        print(f'| {case} | {c["verdict_fraction"]:.3f} | {", ".join(c["hidden"]) or "-"} | '
+              f'{c["seconds"]:.0f} |')
+    print('\n| calibration | healthy units named a fault | faults above the stated limit named '
+          'right | 90 % intervals hold the truth |')
+    print('|---|---|---|---|')
+    h = [r for r in rows if r['fault'] is None]
+    f = [r for r in rows if r['fault'] is not None and r['stated']]
     for how in ('own', 'packaged'):
-        h = [r for r in rows if r['fault'] is None]
-        f = [r for r in rows if r['fault'] is not None]
         alarms = sum(r[how]['named'] != HEALTHY for r in h)
         named = sum(r[how]['named'] == r['fault'] for r in f)
         held = [r[how]['held'] for r in f if r[how]['held'] is not None]
         print(f'| {how} | {alarms}/{len(h)} | {named}/{len(f)} | {sum(held)}/{len(held)} |')
-    print('\nper fault, with the flight\'s own calibration:')
-    print('| fault | units | named right | intervals hold | verdicts when not named |')
-    print('|---|---|---|---|---|')
+    print('\nper fault, with the flight\'s own calibration (units above the stated limit; '
+          'then those of flights that state the fault not revealed):')
+    print('| fault | units | named right | intervals hold | verdicts when not named | '
+          'not revealed: units, named |')
+    print('|---|---|---|---|---|---|')
     for fault in DIAGNOSABLE:
-        f = [r for r in rows if r['fault'] == fault]
+        f = [r for r in rows if r['fault'] == fault and r['stated']]
+        hid = [r for r in rows if r['fault'] == fault and not r['stated']]
         held = [r['own']['held'] for r in f if r['own']['held'] is not None]
         other = sorted({r['own']['named'] for r in f if r['own']['named'] != fault})
         print(f'| {fault} | {len(f)} | {sum(r["own"]["named"] == fault for r in f)} | '
-              f'{sum(held)}/{len(held)} | {", ".join(other) or "-"} |')
+              f'{sum(held)}/{len(held)} | {", ".join(other) or "-"} | '
+              f'{len(hid)}, {sum(r["own"]["named"] == fault for r in hid)} |')
 
 
 if __name__ == '__main__':

@@ -333,21 +333,29 @@ def _flight_and_design(args):
 
 
 def _calibration_summary(cal) -> str:
-    """Per fault: the verdict floor (as a severity) and the model-form spread and bias."""
+    """Per fault: the verdict floor and the detection limit (as severities) and the
+    model-form spread and bias."""
     from ..physics.faults import FAULTS
     from ..prognostics.calibration import from_g
-    lines = [f'{"fault":24s} {"verdict floor":>14s} {"spread (g)":>11s} {"bias (g)":>9s}  '
-             'named units']
+    lines = [f'{"fault":24s} {"verdict floor":>14s} {"revealed from":>14s} {"spread (g)":>11s} '
+             f'{"bias (g)":>9s}  named units']
     for f, floor in cal['healthy_floor'].items():
         c = cal['faults'].get(f)
         spec = FAULTS[f]
+        unit = spec.unit.split()[0]
         sev = from_g(f, floor if spec.demo >= spec.healthy else -floor)
-        lines.append(f'{f:24s} {sev:>9.4g} {spec.unit.split()[0]:>4s} '
+        limit = cal.get('revealed_from', {}).get(f)
+        lines.append(f'{f:24s} {sev:>9.4g} {unit:>4s} '
+                     + (f'{limit:>9.4g} {unit:>4s} ' if limit is not None else
+                        f'{"not revealed":>14s} ')
                      + (f'{c["sigma"]:>11.3g} {c["bias"]:>9.3g}  {c["units"]}' if c else
                         f'{"-":>11s} {"-":>9s}  too few named'))
     lines.append(f'(verdict floor {cal["verdict_fraction"]:.3f} of the way to each alarm value, '
                  f'from {cal["healthy_units"]} healthy units: a healthy unit of this flight is '
-                 f'named a fault with probability at most 1/{cal["healthy_units"] + 1})')
+                 f'named a fault with probability at most 1/{cal["healthy_units"] + 1}; '
+                 'revealed from: the lowest level from which every calibration unit of the '
+                 'fault was named; "not revealed": fly the built-in test, '
+                 'servovalve-twin bit --out bit.yaml)')
     return '\n'.join(lines)
 
 

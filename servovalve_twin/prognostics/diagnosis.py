@@ -404,6 +404,13 @@ def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequenc
         return
     best = d.best
     if best.fault == HEALTHY:
+        hidden = [f for f, s in (cal.get('revealed_from') or {}).items() if s is None]
+        if hidden:
+            # healthy means "no fault this flight reveals": say which it does not
+            d.warnings.append('this flight does not reveal ' + ', '.join(hidden) + ' (its '
+                              'calibration units at the alarm value were not all named): '
+                              'fly the built-in test (servovalve-twin bit --out bit.yaml) '
+                              'to see them')
         return
     best.raw = (best.severity, best.interval)
     sevs, ivs = [], []

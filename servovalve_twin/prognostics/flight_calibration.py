@@ -28,7 +28,12 @@ What is fitted (:func:`fit`), from their diagnoses with the model and free nuisa
   exchangeability a healthy unit of this flight and design is named a fault with probability
   at most ``1/(n + 1)`` (n healthy units) -- a test with a stated false-alarm rate, in place of
   a fixed fraction of the way to the alarm value. Per fault, that fraction of the way is the
-  flight's verdict floor (``healthy_floor``, in ``g``): what the flight can reveal.
+  flight's verdict floor (``healthy_floor``, in ``g``);
+- the detection limit per fault (``revealed_from``): the lowest level from which every unit of
+  the fault, at that level and at each one above it, was named right (its best-scoring
+  hypothesis the fault, beyond the verdict floor) -- as a severity; None where even the units
+  at the alarm value were not all named: the flight does not reveal that fault (fly the
+  built-in test). A severity below it may be called healthy: what this flight can show.
 
 :func:`calibrate_flight` runs the units in a process pool (progress on a terminal), appends
 each finished unit to a ``.partial.jsonl`` beside the cache entry (Ctrl-C keeps them; a rerun
@@ -48,13 +53,14 @@ from ..errors import TwinError
 from ..outputs import output_file
 from ..physics.faults import FAULTS
 from ..physics.params import EhaParams
-from .calibration import LEVELS, fit_calibration, to_g, unit_record, unit_signals
+from .calibration import (LEVELS, fit_calibration, severity_at, to_g, unit_record,
+                          unit_signals)
 from .conformal import ALPHA, quantile
 from .parallel import map_unordered
 from .rules import fraction
 
 #: the method's version: a cache entry of another is not read (its key differs)
-VERSION = 2
+VERSION = 3
 #: the units per fault and level (the healthy ones: twice as many per level)
 DEFAULT_UNITS = 3
 #: the nuisance spread of the units, as a multiple of the documented one
@@ -150,6 +156,26 @@ def verdict_fraction(records: Iterable[Mapping[str, Any]]) -> float:
     return quantile(scores, 1.0 / (len(scores) + 1))
 
 
+def revealed_from(records: Iterable[Mapping[str, Any]], fault: str, u: float
+                  ) -> float | None:
+    """The fault's detection limit on this flight (module docstring), as a level of the way
+    to its alarm value; None: not revealed. A unit is named right when its best-scoring
+    hypothesis (``best``) is its own fault, beyond the verdict floor ``u`` -- the rule
+    ``diagnose`` applies with this calibration. Walked down from the alarm value: one miss at a
+    level ends the walk, so a limit never stands on units that were named above a miss."""
+    units: dict[float, list[bool]] = {}
+    for r in records:
+        if r['fault'] == fault:
+            units.setdefault(r['level'], []).append(
+                bool(r.get('best')) and r['best'][0] == fault and r['best'][1] > u)
+    found = None
+    for q in sorted(units, reverse=True):
+        if not all(units[q]):
+            break
+        found = q
+    return found
+
+
 def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str], alpha: float = ALPHA
         ) -> dict[str, Any]:
     """The calibration entry of a flight from its units' records, its intervals at
@@ -159,6 +185,9 @@ def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str], alpha: floa
     cal['verdict_fraction'] = u
     cal['healthy_floor'] = {f: u * abs(to_g(f, FAULTS[f].demo)) for f in faults}
     cal['healthy_units'] = sum(1 for r in records if r['fault'] is None)
+    levels = {f: revealed_from(records, f, u) for f in faults}
+    cal['revealed_from'] = {f: None if q is None else severity_at(f, q)
+                            for f, q in levels.items()}
     return cal
 
 
@@ -255,4 +284,4 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
 
 
 __all__ = ['calibrate_flight', 'flight_key', 'cached', 'with_pooled', 'jobs', 'unit_seed',
-           'verdict_fraction', 'fit', 'cache_dir', 'VERSION', 'OWN']
+           'verdict_fraction', 'revealed_from', 'fit', 'cache_dir', 'VERSION', 'OWN']

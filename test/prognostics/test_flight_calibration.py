@@ -75,6 +75,33 @@ def test_the_verdict_floor_is_the_largest_size_a_healthy_unit_would_be_named_wit
     assert abs(g) == pytest.approx(0.25 * abs(to_g('supply_loss', FAULTS['supply_loss'].demo)))
 
 
+def _leak(level, best):
+    return dict(fault='leakage_growth', level=level, truth=1.0, named=None, rms=1.0,
+                scenario='own', best=best)
+
+
+def test_a_fault_is_revealed_from_the_lowest_level_all_its_units_above_were_named_at():
+    """The detection limit: walked down from the alarm value, a level counts only if every
+    unit of it was named the fault beyond the floor; one miss ends the walk (a level named
+    below a miss is not a limit); a unit named another fault, or the fault at or under the
+    floor, is a miss; none at the alarm value: not revealed (None)."""
+    ok, floor = ['leakage_growth', 0.5], 0.2
+    recs = [_leak(q, ok) for q in (0.3, 0.6, 1.0) for _ in range(3)]
+    assert fc.revealed_from(recs, 'leakage_growth', floor) == 0.3
+    assert fc.revealed_from(recs + [_leak(0.3, None)], 'leakage_growth', floor) == 0.6
+    assert fc.revealed_from(recs + [_leak(0.6, ['supply_loss', 0.9])], 'leakage_growth',
+                            floor) == 1.0
+    assert fc.revealed_from(recs + [_leak(0.6, ['leakage_growth', 0.2])], 'leakage_growth',
+                            floor) == 1.0
+    assert fc.revealed_from(recs + [_leak(1.0, None)], 'leakage_growth', floor) is None
+    assert fc.revealed_from(recs, 'supply_loss', floor) is None
+    # in the entry: as a severity of the fault, None where not revealed
+    healthy = [_healthy(['leakage_growth', floor])]
+    cal = fc.fit(healthy + recs + [_leak(0.3, None)], ['leakage_growth', 'supply_loss'])
+    assert cal['revealed_from'] == {'leakage_growth': pytest.approx(10 ** 0.6),
+                                    'supply_loss': None}
+
+
 def test_the_verdict_uses_the_flight_s_floor():
     """diagnose's verdict rule with a flight calibration: the best-scoring fault is named only
     beyond the flight's floor (a leak of 0.3 of the way under a floor of 0.35: healthy; under
