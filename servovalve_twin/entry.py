@@ -17,19 +17,22 @@ import os
 import signal
 import sys
 
+from . import stopping
+
 
 def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
+    stopping.watch()
     try:
         target = getattr(importlib.import_module(module), func)
     except KeyboardInterrupt:
-        print('interrupted while starting', file=sys.stderr)
-        # a ROS executable asked to stop before it started has stopped cleanly (launch sends
-        # SIGINT to every process when one ends: no 'process has died' for this one)
-        return 0 if ros else 130
+        _interrupted(ros)
     if not ros:
         return target()
     try:
         code = target()
+    except KeyboardInterrupt:
+        # a SIGINT after the import, before the executable set its own handlers
+        _interrupted(ros)
     except RuntimeError as exc:
         # rcl's refusal of the command line (a -p value YAML cannot parse, a params file it
         # cannot read), wherever the executable hands it over: one line, exit 2
@@ -41,6 +44,17 @@ def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)
     _leave(int(code or 0))
+
+
+def _interrupted(ros: bool) -> None:
+    """Ctrl-C while starting: one line and out -- a second Ctrl-C is ignored (it killed the
+    process by its signal, -2, in the interpreter's teardown)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    print('interrupted while starting', file=sys.stderr)
+    # a ROS executable asked to stop before it started has stopped cleanly (launch sends
+    # SIGINT to every process when one ends: no 'process has died' for this one)
+    _leave(0 if ros else 130)
 
 
 def _leave(code: int) -> None:

@@ -188,7 +188,7 @@ def test_every_valve_model_lives_under_valves():
 #: prognostics; the ROS nodes; the twin; the applications and the test helpers; the CLI; the
 #: entry points.
 FLOORS = (
-    ('errors', 'jitcache', 'outputs', 'progress'),
+    ('errors', 'jitcache', 'outputs', 'progress', 'stopping'),
     ('physics',),
     ('bag', 'config', 'fmu', 'progpy'),
     ('runs',),

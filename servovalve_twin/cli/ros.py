@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .. import stopping
 from ..errors import TwinError
 from .common import (Command, add_foxglove_option, add_param_options, discovery_off,
                      overrides, positive_float)
@@ -141,6 +142,8 @@ class Play(Command):
         stop = []
         old = {sig: signal.signal(sig, lambda *_: stop.append(True))
                for sig in (signal.SIGINT, signal.SIGTERM)}
+        if stopping.asked():            # a Ctrl-C while starting that Python swallowed
+            stop.append(True)
         context = Context()
         # no arguments for rcl: by default it reads sys.argv, and took this command's own
         # values (--remap FROM:=TO, a --topics value) for remap rules of its own

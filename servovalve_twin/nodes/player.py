@@ -56,6 +56,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
+from .. import stopping
 from ..bag.anybag import AnyBag, open_any_bag
 from ..errors import BagError, TwinError
 from .clock import clock_msg
@@ -442,6 +443,8 @@ def main(args: Sequence[str] | None = None) -> int:
     stop = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.append(True))
+    if stopping.asked():                # a Ctrl-C while starting that Python swallowed
+        stop.append(True)
     context, argv = init_context(argv)
     fields = [f.name for f in dataclasses.fields(PlayOptions)]
     try:

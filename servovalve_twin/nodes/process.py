@@ -15,6 +15,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from .. import stopping
 from ..errors import ParameterError, TwinError
 
 def _refuse_unknown_parameters(node: Node) -> None:
@@ -66,6 +67,8 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
         stop.append(True)
     signal.signal(signal.SIGTERM, request_stop)
     signal.signal(signal.SIGINT, request_stop)
+    if stopping.asked():                # a Ctrl-C while starting that Python swallowed
+        stop.append(True)
     try:
         # parsed first on their own: rcl_init would log its own error line before refusing
         remove_ros_args(argv)

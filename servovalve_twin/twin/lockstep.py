@@ -45,6 +45,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
+from .. import stopping
 from ..bag.provenance import PROVENANCE, Provenance
 from ..bag.recorder import Recorder
 from ..bag.table import signal_table
@@ -457,6 +458,8 @@ def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
     if handle_signals:
         for sig in (signal.SIGINT, signal.SIGTERM):
             old[sig] = signal.signal(sig, twin.request_stop)
+        if stopping.asked():            # a Ctrl-C while starting that Python swallowed
+            twin.request_stop()
     try:
         return twin.run(on_tick)
     finally:

@@ -307,19 +307,40 @@ def test_parquet_outputs(tmp_path, monkeypatch):
     assert table['fault'] == ['none', 'null_bias'] and table['alarm'] == [0, 1]
 
 
-def test_ctrl_c_while_a_console_script_imports_is_one_line(monkeypatch, capsys):
+def test_ctrl_c_while_a_console_script_starts_is_one_line(monkeypatch, capsys):
     """The executables import rclpy and numba before anything can handle a signal: the entry
-    points catch Ctrl-C during that import (one line, no traceback; exit 130 for the
-    command line, 0 for the ROS executables, which launch stops with SIGINT)."""
+    points catch Ctrl-C during that import, and between it and the executable's own handlers
+    (one line, no traceback; exit 130 for the command line, 0 for the ROS executables, which
+    launch stops with SIGINT), and ignore a second one from then on (it killed the process by
+    its signal, -2, in the interpreter's teardown)."""
     import importlib
+    import signal
+    from types import SimpleNamespace
     from servovalve_twin import entry
+    ignored = []
+    monkeypatch.setattr(signal, 'signal', lambda sig, how: ignored.append((sig, how)))
 
-    def interrupted(name):
+    def leave(code):
+        raise SystemExit(code)
+    monkeypatch.setattr(entry, '_leave', leave)
+
+    def interrupted(*_):
         raise KeyboardInterrupt
-    monkeypatch.setattr(importlib, 'import_module', interrupted)
-    for script in ('cli', 'plant', 'twin', 'player', 'algorithm'):
-        assert getattr(entry, script)() == (130 if script == 'cli' else 0)
-        assert capsys.readouterr().err == 'interrupted while starting\n'
+    real_import = importlib.import_module
+    for when in ('import', 'main'):
+        monkeypatch.setattr(importlib, 'import_module', interrupted if when == 'import' else
+                            lambda name: SimpleNamespace(**{a: interrupted for a in (
+                                'main', 'main_command_generator')}))
+        for script in ('cli', 'plant', 'twin', 'player', 'command_generator'):
+            if when == 'main' and script == 'cli':
+                continue                    # the command line's main handles its own
+            ignored.clear()
+            with pytest.raises(SystemExit) as stop:
+                getattr(entry, script)()
+            assert stop.value.code == (130 if script == 'cli' else 0), (when, script)
+            assert capsys.readouterr().err == 'interrupted while starting\n'
+            assert (signal.SIGINT, signal.SIG_IGN) in ignored
+    monkeypatch.setattr(importlib, 'import_module', real_import)
 
 
 def test_characteristic_leaves_points_without_steady_state_blank(tmp_path, capsys,

@@ -1,0 +1,34 @@
+"""A stop asked for while a process starts is never lost.
+
+Until an executable installs its own SIGINT handler (after importing rclpy and numba and
+building its context: a second or more on a busy machine), Python's default one raises
+KeyboardInterrupt wherever the interpreter happens to be -- and where that is a weakref
+callback (importlib's module locks have one) Python prints "Exception ignored" and carries on:
+the node then started and ran for ever, deaf to the Ctrl-C it had been sent (seen once in 60
+signals at random instants of a plant's start). So the entry points install :func:`watch`
+first: it raises KeyboardInterrupt as before *and* remembers the request, and each executable,
+once its own handler is in place, asks :func:`asked` whether a stop came before it."""
+
+from __future__ import annotations
+
+import signal
+
+_ASKED: list[int] = []
+
+
+def _ask(signum, frame) -> None:
+    _ASKED.append(signum)
+    raise KeyboardInterrupt
+
+
+def watch() -> None:
+    """Remember every SIGINT from now until the process installs its own handler."""
+    signal.signal(signal.SIGINT, _ask)
+
+
+def asked() -> bool:
+    """Whether a SIGINT arrived while :func:`watch` was the handler."""
+    return bool(_ASKED)
+
+
+__all__ = ['watch', 'asked']
