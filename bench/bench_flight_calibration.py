@@ -2,15 +2,15 @@
 calibration never saw -- against the packaged calibration on the same units.
 
 For each flight x design (``--cases``): ``calibrate-diagnosis`` on it (seeded HD units, seed
-``--cal-seed``, ``--units`` per fault and level), then test units with other seeds: healthy ones
-(``--healthy`` per case) and each catalog fault at a severity drawn beyond the flight's own
-verdict floor (between its detection limit on the flight -- the calibration's
+``--cal-seed``, ``--units`` per fault and level), then test units with other seeds: healthy
+ones (``--healthy`` per case) and each catalog fault at a severity drawn beyond the flight's
+own verdict floor (between its detection limit on the flight -- the calibration's
 ``revealed_from`` -- or 1.25 x the floor's severity in ``g``, whichever is larger, and the
-alarm value; ``--faulty`` per fault), nuisance within 1.5 x the documented spread and noise 0.5-2 x. Each is diagnosed
-twice with SQ, M and CJ free: with the flight's calibration, and with the packaged one (what a
-user had before). Reported: false alarms on healthy units (a fault named), faults named right
-above the stated limit, and 90 % interval coverage per fault; the units of faults a flight's
-calibration states it does not reveal, apart.
+alarm value; ``--faulty`` per fault), nuisance within 1.5 x the documented spread and noise
+0.5-2 x. Each is diagnosed twice with SQ, M and CJ free: with the flight's calibration, and
+with the packaged one (what a user had before). Reported: false alarms on healthy units (a
+fault named), faults named right above the stated limit, and 90 % interval coverage per fault;
+the units of faults a flight's calibration states it does not reveal, apart.
 
 The flights and designs are this bench's own (no calibration or other bench flies them):
 
@@ -26,7 +26,7 @@ The flights and designs are this bench's own (no calibration or other bench flie
   w 10 mm, friction and damping x0.64, loads x0.64).
 
     .venv/bin/python bench/bench_flight_calibration.py [--cases trapezoids:default,...]
-        [--units 3] [--healthy 8] [--faulty 1] [--cal-seed 0] [--seed 500] [--json F]
+        [--units 3] [--healthy 8] [--faulty 1] [--cal-seed 0] [--seed 500] [--json F] [--doc]
 
 Seeds: calibration units come from ``--cal-seed`` (0: what ``calibrate-diagnosis`` uses),
 test units from ``--seed`` (never a calibration's).
@@ -145,6 +145,9 @@ def main() -> None:
     ap.add_argument('--seed', type=int, default=500)
     ap.add_argument('--workers', type=int, default=os.cpu_count() or 1)
     ap.add_argument('--json')
+    ap.add_argument('--doc', action='store_true',
+                    help='write the tables into doc/results/diagnosis.md (section '
+                         'flight_calibration) and the JSON into doc/results/data/')
     args = ap.parse_args()
     t0 = time.perf_counter()
     rows, cals = [], {}
@@ -167,45 +170,52 @@ def main() -> None:
         print(f'{case}: calibrated in {cal_s:.0f} s (floor {cal["verdict_fraction"]:.3f} of '
               f'the way, {cal["healthy_units"]} healthy units); tested {len(jobs)} units',
               file=sys.stderr, flush=True)
-    report(rows, cals, args, time.perf_counter() - t0)
+    data = dict(args=vars(args), calibrations=cals, units=rows,
+                seconds=time.perf_counter() - t0)
+    print(render(data))
     if args.json:
         with open(args.json, 'w') as fh:
-            json.dump(dict(args=vars(args), calibrations=cals, units=rows), fh, indent=1,
-                      default=float)
+            json.dump(data, fh, indent=1, default=float)
+    if args.doc:
+        import results
+        results.write(results.ROOT / 'doc' / 'results' / 'diagnosis.md', 'flight_calibration',
+                      data, render(data))
 
 
-def report(rows, cals, args, wall):
-    print(f'cases {args.cases}; calibration {args.units} units per fault and level (seed '
-          f'{args.cal_seed}); test units seed {args.seed}: {args.healthy} healthy and '
-          f'{args.faulty} per fault per case; {wall:.0f} s')
-    print('\n| case | floor (of the way) | not revealed | calibration [s] |')
-    print('|---|---|---|---|')
+def render(data) -> str:
+    """The bench's tables (markdown) from its JSON (``data``: args, calibrations, units,
+    seconds)."""
+    args, cals, rows = data['args'], data['calibrations'], data['units']
+    out = [f'cases {args["cases"]}; calibration {args["units"]} units per fault and level '
+           f'(seed {args["cal_seed"]}); test units seed {args["seed"]}: {args["healthy"]} '
+           f'healthy and {args["faulty"]} per fault per case; {data["seconds"]:.0f} s', '',
+           '| case | floor (of the way) | not revealed | calibration [s] |', '|---|---|---|---|']
     for case, c in cals.items():
-        print(f'| {case} | {c["verdict_fraction"]:.3f} | {", ".join(c["hidden"]) or "-"} | '
-              f'{c["seconds"]:.0f} |')
-    print('\n| calibration | healthy units named a fault | faults above the stated limit named '
-          'right | 90 % intervals hold the truth |')
-    print('|---|---|---|---|')
+        out.append(f'| {case} | {c["verdict_fraction"]:.3f} | {", ".join(c["hidden"]) or "-"} '
+                   f'| {c["seconds"]:.0f} |')
+    out += ['', '| calibration | healthy units named a fault | faults above the stated limit '
+            'named right | 90 % intervals hold the truth |', '|---|---|---|---|']
     h = [r for r in rows if r['fault'] is None]
     f = [r for r in rows if r['fault'] is not None and r['stated']]
     for how in ('own', 'packaged'):
         alarms = sum(r[how]['named'] != HEALTHY for r in h)
         named = sum(r[how]['named'] == r['fault'] for r in f)
         held = [r[how]['held'] for r in f if r[how]['held'] is not None]
-        print(f'| {how} | {alarms}/{len(h)} | {named}/{len(f)} | {sum(held)}/{len(held)} |')
-    print('\nper fault, with the flight\'s own calibration (units above the stated limit; '
-          'then those of flights that state the fault not revealed):')
-    print('| fault | units | named right | intervals hold | verdicts when not named | '
-          'not revealed: units, named |')
-    print('|---|---|---|---|---|---|')
+        out.append(f'| {how} | {alarms}/{len(h)} | {named}/{len(f)} | '
+                   f'{sum(held)}/{len(held)} |')
+    out += ['', 'Per fault, with the flight\'s own calibration (units above the stated limit; '
+            'then those of flights whose calibration states the fault not revealed):', '',
+            '| fault | units | named right | intervals hold | verdicts when not named | '
+            'not revealed: units, named |', '|---|---|---|---|---|---|']
     for fault in DIAGNOSABLE:
         f = [r for r in rows if r['fault'] == fault and r['stated']]
         hid = [r for r in rows if r['fault'] == fault and not r['stated']]
         held = [r['own']['held'] for r in f if r['own']['held'] is not None]
         other = sorted({r['own']['named'] for r in f if r['own']['named'] != fault})
-        print(f'| {fault} | {len(f)} | {sum(r["own"]["named"] == fault for r in f)} | '
-              f'{sum(held)}/{len(held)} | {", ".join(other) or "-"} | '
-              f'{len(hid)}, {sum(r["own"]["named"] == fault for r in hid)} |')
+        out.append(f'| {fault} | {len(f)} | {sum(r["own"]["named"] == fault for r in f)} | '
+                   f'{sum(held)}/{len(held)} | {", ".join(other) or "-"} | '
+                   f'{len(hid)}, {sum(r["own"]["named"] == fault for r in hid)} |')
+    return '\n'.join(out) + '\n'
 
 
 if __name__ == '__main__':

@@ -25,6 +25,7 @@ interval of 1.96 x ``--stated`` x that sd (1: honest intervals; 0.5: intervals h
 the error, the harder case). Flights: 8-40 per unit over its life.
 
     .venv/bin/python bench/bench_prognosis.py [--units 30] [--seed 7001] [--stated 1.0]
+        [--model-sigma 0.03] [--json F] [--doc SECTION]
 
 Seeds: the method was built on ``--seed 1001`` and ``--seed 2001``; the README and
 doc/results/prognosis.md report ``--seed 7001`` (and others never used while building it).
@@ -87,28 +88,48 @@ def law(kind: str, rng):
     return fault, truth, eol, cycles
 
 
-def readings(fault, truth, cycles, rng, stated):
-    """What diagnose reports per flight: severity, 95 % interval, model_sigma."""
+def readings(fault, truth, cycles, rng, stated, model_sigma=MODEL_SIGMA, with_bias=False):
+    """What diagnose reports per flight: severity, 95 % interval, model_sigma (and, with
+    ``with_bias``, the unit's bias too)."""
     spec = FAULTS[fault]
     h = spec.healthy
     span = abs(spec.demo - h)
     rel = rng.uniform(0.01, 0.04)
-    bias = rng.normal(0.0, MODEL_SIGMA)
+    bias = rng.normal(0.0, model_sigma)
     d = truth(cycles) - h
     sd = rel * np.abs(d) + 0.01 * span
     s = h + d * (1 + bias) + rng.normal(0.0, 1.0, d.size) * sd
     half = 1.96 * stated * sd
-    return [dict(cycles=float(n), severity=float(x), interval=[float(x - w), float(x + w)],
-                 model_sigma=MODEL_SIGMA) for n, x, w in zip(cycles, s, half)]
+    out = [dict(cycles=float(n), severity=float(x), interval=[float(x - w), float(x + w)],
+                model_sigma=model_sigma) for n, x, w in zip(cycles, s, half)]
+    return (out, bias) if with_bias else out
 
 
-def trending(kind: str, units: int, seed: int, stated: float) -> dict:
+def oracle_rul(fault, truth, eol, n_now, bias, model_sigma, rng, draws=1000):
+    """The RUL samples of a predictor that knows the unit's law and reads its flights without
+    error, but not the unit's bias (it knows its spread): reading a departure d (1 + bias), it
+    takes the true crossing at d_thr (1 + b') / (1 + bias) for b' ~ N(0, model_sigma), so its
+    samples carry exactly the uncertainty no trend can remove. Its alpha-lambda is the ceiling
+    of any method's on these histories."""
+    h = FAULTS[fault].healthy
+    d_thr = FAULTS[fault].demo - h
+    grid = np.linspace(0.0, 3.0 * eol, 30001)
+    dep = (truth(grid) - h) / d_thr                 # rising from 0 to 1 at eol, monotone
+    b = rng.normal(0.0, model_sigma, draws) if model_sigma > 0 else np.zeros(draws)
+    target = (1.0 + b) / (1.0 + bias)
+    cross = np.interp(target, dep, grid, right=np.inf)
+    return np.maximum(cross - n_now, 0.0)
+
+
+def trending(kind: str, units: int, seed: int, stated: float,
+             model_sigma: float = MODEL_SIGMA) -> dict:
     rng = np.random.default_rng(seed)
+    orng = np.random.default_rng(seed + 10_000)     # the oracle's own draws: same histories
     marks = {25: [], 50: [], 75: []}
-    after = []                      # (covered, alpha-lambda, RA) at each flight after half
+    after = []          # (covered, alpha-lambda, RA, oracle's alpha-lambda) per flight after half
     for u in range(units):
         fault, truth, eol, cycles = law(kind, rng)
-        hist = readings(fault, truth, cycles, rng, stated)
+        hist, bias = readings(fault, truth, cycles, rng, stated, model_sigma, with_bias=True)
         thr = FAULTS[fault].demo
         todo = {}
         for pct in marks:
@@ -127,14 +148,17 @@ def trending(kind: str, units: int, seed: int, stated: float) -> dict:
             draws = np.where(np.isfinite(p.draws), p.draws, 1e9)
             al = alpha_lambda({float(cycles[k]): draws}, eol, float(cycles[k]), alpha=ALPHA)
             ra = 1.0 - abs(true_rul - p.rul['median']) / true_rul
+            od = oracle_rul(fault, truth, eol, float(cycles[k]), bias, model_sigma, orng)
+            oal = alpha_lambda({float(cycles[k]): np.where(np.isfinite(od), od, 1e9)}, eol,
+                               float(cycles[k]), alpha=ALPHA)
             for t in tags:
-                (after if t == 'after' else marks[t]).append((covered, al, ra))
+                (after if t == 'after' else marks[t]).append((covered, al, ra, oal))
     out = {}
     for key, rows in [*((f'{p} %', marks[p]) for p in marks), ('after half', after)]:
         if rows:
-            c, a, r = zip(*rows)
+            c, a, r, o = zip(*rows)
             out[key] = dict(points=len(rows), covered=int(sum(c)), alpha_lambda=int(sum(a)),
-                            ra_median=float(np.median(r)))
+                            ra_median=float(np.median(r)), oracle_alpha_lambda=int(sum(o)))
     return out
 
 
@@ -193,32 +217,54 @@ def main() -> None:
     ap.add_argument('--seed', type=int, default=7001)
     ap.add_argument('--stated', type=float, default=1.0,
                     help='stated sd / true sd of each flight\'s error (default 1: honest)')
+    ap.add_argument('--model-sigma', type=float, default=MODEL_SIGMA,
+                    help='sd of each unit\'s bias, relative to its departure from healthy '
+                         f'(stated to prognose as model_sigma; default {MODEL_SIGMA:g})')
     ap.add_argument('--json', help='write the results here too')
+    ap.add_argument('--doc', metavar='SECTION',
+                    help='write the tables into that section of doc/results/diagnosis.md and '
+                         'the JSON into doc/results/data/SECTION.json')
     args = ap.parse_args()
     t0 = time.perf_counter()
-    print(f'seeded histories: {args.units} units per law, 8-40 flights, flight error 1-4 % of '
-          f'the departure + 1 % of the alarm span (intervals state {args.stated:g} x it), unit '
-          f'bias sd {MODEL_SIGMA:.0%} (stated); seed {args.seed}')
-    print('\n| law | at | points | 90 % RUL interval holds the truth | alpha-lambda met '
-          f'(alpha {ALPHA:g}) | median RA |')
-    print('|---|---|---|---|---|---|')
     results = {}
     for i, kind in enumerate(TRENDING):
-        r = results[kind] = trending(kind, args.units, args.seed + i, args.stated)
-        for at, x in r.items():
-            print(f'| {kind} | {at} | {x["points"]} | {x["covered"]} '
-                  f'({x["covered"] / x["points"]:.1%}) | {x["alpha_lambda"]} '
-                  f'({x["alpha_lambda"] / x["points"]:.1%}) | {x["ra_median"]:.2f} |')
-    tf = results['trend-free'] = trend_free(3 * args.units, args.seed + 7, args.stated)
-    st = results['step'] = steps(args.units, args.seed + 8, args.stated)
-    pa = results['past'] = past(args.units, args.seed + 9, args.stated)
-    print(f'\ntrend-free histories called `no degradation trend`: {tf["no_trend"]}/{tf["units"]}'
-          f'; steps past the threshold given RUL 0 (median and p05): {st["rul_zero"]}/'
-          f'{st["units"]}; last reading wholly past the threshold given `past threshold`, RUL 0:'
-          f' {pa["rul_zero"]}/{pa["units"]}; {time.perf_counter() - t0:.0f} s')
+        results[kind] = trending(kind, args.units, args.seed + i, args.stated, args.model_sigma)
+    results['trend-free'] = trend_free(3 * args.units, args.seed + 7, args.stated)
+    results['step'] = steps(args.units, args.seed + 8, args.stated)
+    results['past'] = past(args.units, args.seed + 9, args.stated)
+    data = dict(args=vars(args), results=results, seconds=time.perf_counter() - t0)
+    print(render(data))
     if args.json:
         with open(args.json, 'w') as f:
-            json.dump(dict(args=vars(args), results=results), f, indent=1)
+            json.dump(data, f, indent=1)
+    if args.doc:
+        import results as pages
+        pages.write(pages.ROOT / 'doc' / 'results' / 'diagnosis.md', args.doc, data,
+                    render(data))
+
+
+def render(data) -> str:
+    """The bench's tables (markdown) from its JSON (``data``: args, results, seconds)."""
+    args, results = data['args'], data['results']
+    out = [f'Seeded histories: {args["units"]} units per law, 8-40 flights, flight error 1-4 % '
+           f'of the departure + 1 % of the alarm span (intervals state {args["stated"]:g} x '
+           f'it), unit bias sd {args["model_sigma"]:.0%} (stated); seed {args["seed"]}; '
+           f'{data["seconds"]:.0f} s.', '',
+           '| law | at | points | 90 % RUL interval holds the truth | alpha-lambda met '
+           f'(alpha {ALPHA:g}) | median RA | ceiling: an oracle of the law, not the bias |',
+           '|---|---|---|---|---|---|---|']
+    for kind in TRENDING:
+        for at, x in results[kind].items():
+            out.append(f'| {kind} | {at} | {x["points"]} | {x["covered"]} '
+                       f'({x["covered"] / x["points"]:.1%}) | {x["alpha_lambda"]} '
+                       f'({x["alpha_lambda"] / x["points"]:.1%}) | {x["ra_median"]:.2f} | '
+                       f'{x["oracle_alpha_lambda"] / x["points"]:.1%} |')
+    tf, st, pa = results['trend-free'], results['step'], results['past']
+    out += ['', f'Trend-free histories called `no degradation trend`: {tf["no_trend"]}/'
+            f'{tf["units"]}; steps past the threshold given RUL 0 (median and p05): '
+            f'{st["rul_zero"]}/{st["units"]}; last reading wholly past the threshold given '
+            f'`past threshold`, RUL 0: {pa["rul_zero"]}/{pa["units"]}.']
+    return '\n'.join(out) + '\n'
 
 
 if __name__ == '__main__':
