@@ -2,11 +2,40 @@
 lib/servovalve_twin/ (setup.cfg) so that `ros2 run servovalve_twin <node>` finds them; a plain
 `pip install` puts the same console scripts in bin/."""
 
+import os
+import subprocess
+import sys
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
+from setuptools.command.build_py import build_py
 
 package_name = 'servovalve_twin'
+
+
+class build_py_and_loops(build_py):
+    """The package, and the step loops compiled ahead of time beside it
+    (``python -m servovalve_twin.aot``): a plain ``pip install .`` (pyproject.toml brings numba
+    into the build) or a ``colcon build`` then runs a model without compiling it. Not for an
+    editable install (``scripts/setup`` builds the module in the source tree), nor with
+    SERVOVALVE_TWIN_NO_AOT set; where it cannot be built the loops compile on first use."""
+
+    def run(self):
+        super().run()
+        if getattr(self, 'editable_mode', False) or os.environ.get('SERVOVALVE_TWIN_NO_AOT'):
+            return
+        here = Path(__file__).resolve().parent
+        dest = Path(self.build_lib).resolve() / package_name
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            p for p in (str(here), os.environ.get('PYTHONPATH')) if p))
+        print('servovalve_twin: compiling the step loops ahead of time (gcc; 2-5 min) ...',
+              file=sys.stderr, flush=True)
+        r = subprocess.run([sys.executable, '-m', 'servovalve_twin.aot', '--dest', str(dest)],
+                           cwd=here, env=env)
+        if r.returncode:
+            print('servovalve_twin: the loops could not be compiled ahead of time; each model '
+                  'compiles on first use instead (2-5 s)', file=sys.stderr, flush=True)
 
 setup(
     name=package_name,
@@ -34,6 +63,7 @@ setup(
                     'test': ['pytest', 'rosbags', 'mcap-ros2-support', 'websockets', 'progpy',
                              'pythonfmu', 'fmpy', 'ruff']},
     python_requires='>=3.10',
+    cmdclass={'build_py': build_py_and_loops},
     zip_safe=False,
     maintainer='servovalve_twin maintainers',
     maintainer_email='maintainers@servovalve-twin.invalid',

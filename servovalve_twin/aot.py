@@ -2,18 +2,19 @@
 runs it after installing) builds one extension module holding every valve model's loops
 (:func:`~.physics.plant.run_steps_for`, without and with sensors, and the fleet's
 :func:`~.physics.fleet.run_fleet_for`) with numba's ahead-of-time compiler and gcc, so that a
-process runs a loop without compiling it or loading numba's cache. A plain ``pip install``
-builds no module (pip builds wheels without numba); run ``python -m servovalve_twin.aot`` once
-after it (the module goes beside the installed package) -- without it each model's loops are
-compiled by the first process that runs them (2-5 s) and loaded from numba's disk cache by the
-next ones. ``--check`` says whether the module of the current physics is there.
+process runs a loop without compiling it or loading numba's cache. A plain ``pip install .``
+or a ``colcon build`` builds the module too (setup.py's ``build_py``; pyproject.toml brings
+numba into pip's build); an editable install does not (``scripts/setup`` runs this module
+after it) -- without the module each model's loops are compiled by the first process that
+runs them (2-5 s) and loaded from numba's disk cache by the next ones. ``--check`` says whether
+the module of the current physics is there.
 
 This module is the builder; the loader the physics uses (:func:`~.jitcache.aot_loop`) is in
 :mod:`~.jitcache`, below the physics (the physics imported it from here: a circle). The module is
 named after the physics stamp (:func:`~.jitcache.physics_stamp`, a digest of every
 source of the compiled physics): after any edit of the physics its name no longer matches, it
 is not loaded, and the loops come from the JIT again -- which stays the fallback (a machine
-without the module, a ``colcon build`` tree, the FMU) and the reference: the same Python
+without the module, an editable install after a physics edit, the FMU) and the reference: the same Python
 source compiled by the same numba, and a test holds the two to the same bytes.
 ``SERVOVALVE_TWIN_JIT=1`` in the environment uses the JIT even where the module exists.
 """
