@@ -234,6 +234,13 @@ class MonitorAlgorithm(Algorithm):
         self._w = new_state(self._bounds(self.nominal), self._thresholds())
         self._ring = np.zeros((len(RESIDUALS), self._window_rows()))
         self.last_dropped = ''
+        # the rows' loop loaded (or compiled) now, over no row, not at the first sample: a
+        # node hosting the monitor says it has started once it can step (as EhaPlant's tick)
+        p = self.plant
+        self._rows = (p.model.id, monitor_rows_for(p.model.id))
+        self._rows[1](p.model.id, p.s.copy(), p.vs.copy(), p._kernel_arr, self.n_sub,
+                      self._u1[:0], self._w.copy(), self._ring.copy(), self._out1[:0],
+                      self._lev1[:0], False)
 
     def _window_rows(self) -> int:
         return max(1, int(round(self.config.window / (self.period or 1e-3))))

@@ -229,3 +229,25 @@ def test_a_row_s_level_is_its_worst_signal_s(first, later):
     assert np.all(res.level[both] == 2)
     only_later = (res.indicators[first] <= 1e-300) & (res.indicators[later] > 1e-300)
     assert np.all(res.level[only_later] == 1)
+
+
+def test_the_monitor_loads_its_loop_at_setup_not_at_its_first_sample(monkeypatch):
+    """setup() runs the monitor's rows loop once over no row, on copies of its state: a node
+    hosting it says it has started once it can step (a first sample compiled the loop for
+    ~7.5 s without the compiled module). Its own state is not touched."""
+    from servovalve_twin.prognostics import monitor as mon
+    calls = []
+
+    def fake_rows_for(model_id):
+        def rows(mid, s, vs, P, n_sub, u, w, ring, out, level, stop):
+            calls.append((mid, u.shape[0], w, ring, n_sub))
+            return mon.DONE
+        return rows
+    monkeypatch.setattr(mon, 'monitor_rows_for', fake_rows_for)
+    alg = MonitorAlgorithm()
+    assert not calls
+    alg.setup(1e-3, DEFAULTS)
+    assert len(calls) == 1
+    mid, rows, w, ring, n_sub = calls[0]
+    assert rows == 0 and mid == alg.plant.model.id and n_sub == alg.n_sub > 0
+    assert w is not alg._w and ring is not alg._ring
