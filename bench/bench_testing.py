@@ -26,7 +26,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'docs' / 'examples' / 'my_detector'))
+sys.path.insert(0, str(ROOT / 'doc' / 'examples' / 'my_detector'))
 BAG = ROOT / 'servovalve_twin' / 'data' / 'paper_HD'
 
 

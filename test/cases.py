@@ -16,7 +16,7 @@ from servovalve_twin.config import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the example package of the docs (``leak_detector:LeakDetector``), importable by the rows
-EXAMPLE = ROOT / 'docs' / 'examples' / 'my_detector'
+EXAMPLE = ROOT / 'doc' / 'examples' / 'my_detector'
 
 # -- scenarios ---------------------------------------------------------------------------------
 

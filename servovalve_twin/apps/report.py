@@ -4,7 +4,7 @@ C1-C3 beyond it.
 ``servovalve-twin report [--out-dir out/report]`` writes ``report.md`` (the tables, with the
 machine and its load while it measured: the step costs depend on them) and the figures into a
 new (or empty) directory. It never edits a file of the repository: the results pages
-(doc/results/against-hd.md, beyond-the-paper.md) and docs/figures are updated by copying from
+(doc/results/against-hd.md, beyond-the-paper.md) and doc/figures are updated by copying from
 there, after a quiet-machine run.
 """
 

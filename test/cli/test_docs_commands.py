@@ -86,8 +86,8 @@ TOUR = [cmd for n, cmd in command_lines(ROOT / 'README.md')
 def test_the_readme_tour_runs_as_printed(tmp_path):
     """simulate, compare, run (bags/hd), diagnose of that bag, the limits of the paper
     flight, the built-in test: as printed, from a scratch directory that holds the
-    repository's config/ and docs/ (paths the README names)."""
-    for d in ('config', 'docs'):
+    repository's config/ and doc/ (paths the README names)."""
+    for d in ('config', 'doc'):
         os.symlink(ROOT / d, tmp_path / d)
     assert len(TOUR) >= 6, TOUR
     for cmd in TOUR:

@@ -27,7 +27,7 @@ from servovalve_twin.twin import Twin, run_twin
 from conftest import ROOT
 from cases import PAPER
 
-EXAMPLE = ROOT / 'docs' / 'examples' / 'my_detector'
+EXAMPLE = ROOT / 'doc' / 'examples' / 'my_detector'
 sys.path.insert(0, str(EXAMPLE))
 DETECTOR = 'leak_detector:LeakDetector'
 LEAKING = dict(PAPER, faults=[{'at': 0.1, 'fault': 'leakage_growth', 'severity': 5.0}])
@@ -232,7 +232,7 @@ def test_replay_into_is_deterministic_under_load(ros_context, twin_bag):
 
 @pytest.mark.slow
 def test_the_worked_example_passes_as_a_users_test_suite():
-    """docs/examples/my_detector's tests, run as a user runs them: the fixtures come from the
+    """doc/examples/my_detector's tests, run as a user runs them: the fixtures come from the
     installed package's pytest plugin, nothing from this repository's conftest."""
     r = subprocess.run([sys.executable, '-m', 'pytest', '-q', '-p', 'no:cacheprovider',
                         str(EXAMPLE)], capture_output=True,

@@ -329,7 +329,7 @@ def test_algorithm_and_player_executables(tmp_path):
     # itself comes from install/ through PYTHONPATH)
     env = dict(os.environ, RCUTILS_LOGGING_BUFFERED_STREAM='0',
                PYTHONPATH=os.pathsep.join(filter(None, (
-                   str(ROOT / 'docs' / 'examples' / 'my_detector'),
+                   str(ROOT / 'doc' / 'examples' / 'my_detector'),
                    os.environ.get('PYTHONPATH')))))
     proc = subprocess.Popen([console_script('algorithm'), '--ros-args', '-p',
                              'class:=leak_detector:LeakDetector', '-p', 'threshold:=2.5'],

@@ -6,9 +6,9 @@ the paper's scenario; leakage grows from 0.1 s (CLk x severity). Two monitors wa
 the paper's best model, C2, and SQ (the default) -- with their calibrated thresholds (set for
 a false-alarm rate of 1e-3 per flight over many flights, not tuned on this one). Prints the
 detection table
-and writes docs/figures/leakage_detection.png.
+and writes doc/figures/leakage_detection.png.
 
-    .venv/bin/python docs/examples/leakage_detection.py [--repeats 8] [--nominal 20]
+    .venv/bin/python doc/examples/leakage_detection.py [--repeats 8] [--nominal 20]
 """
 
 import argparse
@@ -50,7 +50,7 @@ def main() -> None:
             mx = '-' if row['max_delay'] is None else f'{row["max_delay"] * 1e3:.0f}'
             print(f'| {row["severity"]:g} | {row["detection_rate"]:.0%} ({row["runs"]}) | '
                   f'{mean} | {mx} |')
-    plot(results, Path('docs/figures/leakage_detection.png'))
+    plot(results, Path('doc/figures/leakage_detection.png'))
 
 
 def plot(results, path: Path) -> None:

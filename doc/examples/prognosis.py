@@ -13,9 +13,9 @@ the alpha-lambda accuracy of PHM (Saxena et al., 2010: at a fraction lambda of l
 prediction within +-alpha of the true RUL? alpha = 30 % here), twice: the median against the
 bounds, and progpy's own metric (``progpy.metrics.alpha_lambda``: at least beta = 50 % of the
 Monte-Carlo end-of-life distribution within them; progpy is the ``[progpy]`` extra). Prints the
-table and writes docs/figures/prognosis.png.
+table and writes doc/figures/prognosis.png.
 
-    .venv/bin/python docs/examples/prognosis.py [--units 6] [--seed 2]
+    .venv/bin/python doc/examples/prognosis.py [--units 6] [--seed 2]
 """
 
 import argparse
@@ -54,7 +54,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument('--units', type=int, default=6)
     ap.add_argument('--seed', type=int, default=2)
-    ap.add_argument('--figure', default='docs/figures/prognosis.png')
+    ap.add_argument('--figure', default='doc/figures/prognosis.png')
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()

@@ -1,8 +1,8 @@
 """Score the LeakDetector over a fault sweep, as `servovalve-twin sweep --algorithm` does: the
-fleet of docs/examples/leakage_detection.py (HD plants, mass +-10 %, viscous and dynamic friction
+fleet of doc/examples/leakage_detection.py (HD plants, mass +-10 %, viscous and dynamic friction
 +-20 %, leakage from 0.1 s) -- the same runs the C2 and SQ monitors were scored on there.
 
-    PYTHONPATH=docs/examples/my_detector .venv/bin/python docs/examples/my_detector/score.py
+    PYTHONPATH=doc/examples/my_detector .venv/bin/python doc/examples/my_detector/score.py
 """
 
 import sys
