@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
+import math
 import os
 import secrets
 import shutil
 import stat
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO, Any, Iterator
 
 from .errors import TwinError
 
@@ -183,4 +185,21 @@ def write_new(path: Path, text: str) -> None:
         raise
 
 
-__all__ = ['output_file', 'output_path', 'place_new', 'write_new']
+def json_ready(o: Any) -> Any:
+    """``o`` with NaN and infinities as None (JSON null: JSON has no such numbers)."""
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: json_ready(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [json_ready(v) for v in o]
+    return o
+
+
+def write_json(path: str | Path, payload: Any) -> None:
+    """``payload`` as indented JSON (:func:`json_ready`) to a new ``path``, whole or absent."""
+    with output_file(path) as fh:
+        fh.write(json.dumps(json_ready(payload), indent=2) + '\n')
+
+
+__all__ = ['output_file', 'output_path', 'place_new', 'write_new', 'json_ready', 'write_json']

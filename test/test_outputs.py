@@ -136,3 +136,16 @@ def test_an_output_path_that_is_not_a_regular_file_is_refused(tmp_path, capsys):
             with output_file(path) as fh:
                 fh.write('x')
     assert stat.S_ISCHR(os.lstat(os.devnull).st_mode)
+
+
+def test_write_json_writes_nan_and_infinities_as_null(tmp_path):
+    """JSON has no NaN or infinity: json.dumps would write the non-standard NaN/Infinity that
+    strict readers refuse; write_json writes null, nested in dicts, lists and tuples."""
+    import json
+    import math
+    from servovalve_twin.outputs import write_json
+    path = tmp_path / 'x.json'
+    write_json(path, {'a': math.nan, 'b': [math.inf, 1.5, (-math.inf, 2)], 'c': {'d': 3}})
+    text = path.read_text()
+    assert 'NaN' not in text and 'Infinity' not in text
+    assert json.loads(text) == {'a': None, 'b': [None, 1.5, [None, 2]], 'c': {'d': 3}}

@@ -8,7 +8,6 @@ inside a window [t0, t1) -- the last window of a run is closed at the end time.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -16,7 +15,6 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import TwinError
-from ..outputs import output_file
 from ..physics.signals import INPUTS
 
 #: signals compared, with their display unit and scale
@@ -306,22 +304,6 @@ def format_table(metrics: Mapping[str, Mapping[str, Mapping[str, float]]],
                          else f'{"-":>30}')
         lines.append(f'{wname:<12}' + ''.join(f'{c:>30}' for c in cells))
     return '\n'.join(lines)
-
-
-def json_ready(o: Any) -> Any:
-    """``o`` with NaN and infinities as None (JSON null: JSON has no such numbers)."""
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    if isinstance(o, dict):
-        return {k: json_ready(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [json_ready(v) for v in o]
-    return o
-
-
-def write_json(path: str | Path, payload: Any) -> None:
-    with output_file(path) as fh:                 # whole or absent
-        fh.write(json.dumps(json_ready(payload), indent=2) + '\n')
 
 
 def provenance_differences(ref: str | Path, run: str | Path) -> list[str]:

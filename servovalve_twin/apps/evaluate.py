@@ -208,7 +208,7 @@ class Evaluation:
     def write_json(self) -> None:
         """The payload, its columns streamed from the temporary files; whole or absent."""
         from ..outputs import output_file
-        from .compare import json_ready
+        from ..outputs import json_ready
         # a placeholder per column that no text of the payload can hold by chance
         mark = f'\ue000{secrets.token_hex(8)}:'
         payload = {**self.payload_head(), 't': mark + 't',

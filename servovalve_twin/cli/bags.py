@@ -27,9 +27,9 @@ class Compare(Command):
     def main(self, args):
         from ..apps.compare import (PlotRows, compare_bags, coverage, coverage_warning,
                                     exceeded, format_table, parse_tolerances,
-                                    provenance_differences, run_span_ms, run_windows,
-                                    write_json)
+                                    provenance_differences, run_span_ms, run_windows)
         from ..apps.plots import plot_overlay
+        from ..outputs import write_json
         tolerances = parse_tolerances(args.tolerance)
         # block by block, in memory that does not grow with the bags (a table is held whole);
         # a plot keeps at most PLOT_ROWS rows a run

@@ -94,7 +94,7 @@ class Diagnose(Command):
 
     def main(self, args):
         import time
-        from ..apps.compare import write_json
+        from ..outputs import write_json
         from ..apps.diagnose import diagnose_bag, parse_faults, parse_window, plot_diagnosis
         free = tuple(n.strip() for n in (args.free or '').split(',') if n.strip())
         if args.limits is not None:
@@ -146,7 +146,7 @@ def _diagnose_fleet(args, options) -> int:
     """``diagnose BAG1 BAG2 ... --json DIR``: each bag on a local process or a Dask worker,
     its JSON and its line as it finishes; ``summary.json`` at the end (of what finished, on
     Ctrl-C too)."""
-    from ..apps.compare import write_json
+    from ..outputs import write_json
     from ..apps.diagnose import diagnose_fleet_member
     from ..prognostics.parallel import (check_scheduler, interrupt_code, map_unordered,
                                         restore_signals, stop_on_signals)
@@ -231,7 +231,7 @@ def _answer(d) -> str:
 def _print_limits(args: argparse.Namespace, free: tuple[str, ...],
                   faults: Sequence[str]) -> int:
     """``diagnose --limits SCENARIO``: each fault's detection limit and resolution."""
-    from ..apps.compare import write_json
+    from ..outputs import write_json
     from ..config import load_scenario
     from ..physics.simulate import effective_params
     from ..prognostics.excitation import detection_limits, format_limits
@@ -459,7 +459,7 @@ class Bit(Command):
 
     def main(self, args):
         import yaml
-        from ..apps.compare import write_json
+        from ..outputs import write_json
         from ..physics.params import DEFAULTS
         from ..prognostics.excitation import (RigLimits, design_bit, detection_limits,
                                               format_limits)
@@ -505,7 +505,7 @@ class Prognose(Command):
         p.add_argument('--plot', metavar='FILE.png', help='history, trend, threshold, RUL')
 
     def main(self, args):
-        from ..apps.compare import write_json
+        from ..outputs import write_json
         from ..apps.diagnose import parse_window, plot_prognosis, prognose_bags
         fault, sep, value = (args.threshold or '').partition('=')
         if not fault:

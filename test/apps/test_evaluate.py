@@ -13,7 +13,7 @@ import pytest
 
 from bagmaker import f64, write_bag, write_long_bag
 from cases import HOSTILE_ALGORITHMS
-from servovalve_twin.apps.compare import write_json
+from servovalve_twin.outputs import write_json
 from servovalve_twin.apps.evaluate import evaluate, run_to_json
 from servovalve_twin.bag import reader
 from servovalve_twin.cli import main
