@@ -1,116 +1,19 @@
-"""The storages a bag may use, one reader each, registered in :data:`STORAGES` -- in the spirit
-of rosbag2's storage plugins (``get_registered_readers()``): a new storage is one class here and
-one entry in the registry, and every command that takes a bag reads it through
-:func:`~.anybag.open_any_bag`.
-
-A storage reads *one file*: its topics and counts (:meth:`Storage.summary`), its messages in
-log-time order (:meth:`Storage.messages`) and the bag-level metadata records it carries
-(:meth:`Storage.metadata`: MCAP's ``Metadata`` records; sqlite3 has none of its own). Every
-failure is one :class:`~servovalve_twin.errors.BagError` line; a CRC that does not hold is
-corruption, never read past.
-"""
+"""MCAP files (``.mcap``): chunks uncompressed, zstd or lz4, read in log-time order chunk by
+chunk where the chunks allow it, every CRC checked once per state of the file."""
 
 from __future__ import annotations
 
-import dataclasses
 import inspect
 import io
 import os
-import sqlite3
 import struct
 import zlib
 from pathlib import Path
-from typing import Any, Iterator, NamedTuple
-
-import yaml
-
-from ..errors import BagError
-from . import safe_load
-
-# what a damaged file raises inside the mcap library besides its own McapError
-_CORRUPT = (EOFError, struct.error, ValueError, KeyError, IndexError, UnicodeDecodeError,
-            MemoryError, OverflowError)
-
-# rmw's enums, as rosbag2 versions <= 8 wrote them (rmw/types.h)
-_HISTORY = {0: 'system_default', 1: 'keep_last', 2: 'keep_all', 3: 'unknown'}
-_RELIABILITY = {0: 'system_default', 1: 'reliable', 2: 'best_effort', 3: 'unknown',
-                4: 'best_available'}
-_DURABILITY = {0: 'system_default', 1: 'transient_local', 2: 'volatile', 3: 'unknown',
-               4: 'best_available'}
-_LIVELINESS = {0: 'system_default', 1: 'automatic', 2: 'manual_by_node', 3: 'manual_by_topic',
-               4: 'unknown', 5: 'best_available'}
-_POLICIES = {'history': _HISTORY, 'reliability': _RELIABILITY, 'durability': _DURABILITY,
-             'liveliness': _LIVELINESS}
+from typing import NamedTuple
 
 
-def normalise_qos(raw: Any) -> list[dict[str, Any]]:
-    """Offered QoS profiles as v9 stores them (a list of maps with policy names), from a v9
-    list, a v4-8 YAML string, integer or name policies; [] when absent or unreadable."""
-    if isinstance(raw, str):
-        try:
-            raw = safe_load(raw) if raw.strip() else []
-        except yaml.YAMLError:
-            return []
-    if not isinstance(raw, list):
-        return []
-    out = []
-    for prof in raw:
-        if not isinstance(prof, dict):
-            continue
-        prof = dict(prof)
-        for key, names in _POLICIES.items():
-            v = prof.get(key)
-            if isinstance(v, int) and not isinstance(v, bool):
-                prof[key] = names.get(v, 'unknown')
-            elif isinstance(v, str):
-                prof[key] = v.lower()
-        out.append(prof)
-    return out
-
-
-@dataclasses.dataclass
-class TopicInfo:
-    name: str
-    type: str
-    qos: list[dict[str, Any]]
-    count: int = 0
-    serialization_format: str = 'cdr'
-
-
-# (topics, (first log time, last log time, message count)) of one file
-Summary = tuple[dict[str, TopicInfo], tuple[int, int, int]]
-
-
-class Storage:
-    """One storage's reader of one file (the interface every registered storage fills)."""
-
-    name: str = ''
-    suffix: str = ''
-    magic: bytes = b''
-
-    def summary(self, f: Path) -> Summary:
-        """Topics with counts and the time span; by default one pass over the messages."""
-        topics: dict[str, TopicInfo] = {}
-        t0 = t1 = None
-        n = 0
-        for topic, t, _ in self.messages(f, None, None, None, topics):
-            topics[topic].count += 1
-            t0 = t if t0 is None else min(t0, t)
-            t1 = t if t1 is None else max(t1, t)
-            n += 1
-        return topics, (t0 or 0, t1 or 0, n)
-
-    def messages(self, f: Path, keep: set[str] | None, start_ns: int | None,
-                 end_ns: int | None, topics_out: dict[str, TopicInfo] | None = None
-                 ) -> Iterator[tuple[str, int, bytes]]:
-        """(topic, log time, CDR bytes) in log-time order; ``keep`` selects topics, the bounds
-        are inclusive; ``topics_out`` collects each topic's description as it is met."""
-        raise NotImplementedError
-
-    def metadata(self, f: Path, *, checked: bool = False) -> dict[str, dict[str, str]]:
-        """The file's named metadata records (name -> string map); none by default.
-        ``checked``: the file's checksums were verified already (by :meth:`summary`)."""
-        return {}
+from ...errors import BagError
+from .base import _CORRUPT, Storage, Summary, TopicInfo, normalise_qos
 
 
 def mcap_errors() -> tuple[type[BaseException], ...]:
@@ -458,98 +361,4 @@ class McapStorage(Storage):
         return out
 
 
-class Sqlite3Storage(Storage):
-    """rosbag2's sqlite3 files (``.db3``), opened read-only; any schema version's topics table."""
-
-    name, suffix, magic = 'sqlite3', '.db3', b'SQLite format 3'
-
-    def messages(self, f, keep, start_ns, end_ns, topics_out=None):
-        # read-only and immutable: sqlite then writes no -shm or -wal beside the user's bag
-        # (a WAL-mode bag opened with mode=ro alone left both); a bag with a -wal beside it
-        # was not closed cleanly and its last writes are in that file, which only a plain
-        # read-only open reads
-        live = Path(str(f) + '-wal').exists()
-        uri = Path(f).resolve().as_uri() + ('?mode=ro' if live else '?mode=ro&immutable=1')
-        try:
-            con = sqlite3.connect(uri, uri=True)
-        except sqlite3.Error as exc:
-            raise BagError(f'cannot open {str(f)!r} as sqlite3: {exc}') from None
-        try:
-            cols = {r[1] for r in con.execute('PRAGMA table_info(topics)')}
-            if not {'id', 'name', 'type'} <= cols:
-                raise BagError(f'{str(f)!r} is not a rosbag2 sqlite3 file (no topics table)')
-            qcol = 'offered_qos_profiles' if 'offered_qos_profiles' in cols else "''"
-            fcol = 'serialization_format' if 'serialization_format' in cols else "'cdr'"
-            names = {}
-            for tid, name, typ, fmt, qos in con.execute(
-                    f'SELECT id, name, type, {fcol}, {qcol} FROM topics'):
-                names[tid] = name
-                if topics_out is not None:
-                    topics_out.setdefault(name, TopicInfo(name, typ, normalise_qos(qos),
-                                                          serialization_format=fmt))
-            where, args = [], []
-            if keep is not None:
-                ids = [i for i, n in names.items() if n in keep]
-                where.append(f'topic_id IN ({",".join("?" * len(ids)) or "NULL"})')
-                args += ids
-            if start_ns is not None:
-                where.append('timestamp >= ?')
-                args.append(int(start_ns))
-            if end_ns is not None:
-                where.append('timestamp <= ?')
-                args.append(int(end_ns))
-            sql = ('SELECT topic_id, timestamp, data, id FROM messages'
-                   + (' WHERE ' + ' AND '.join(where) if where else '')
-                   + ' ORDER BY timestamp, id')
-            last_id: dict[int, int] = {}
-            for tid, t, data, rid in con.execute(sql, args):
-                if tid not in names or type(t) is not int or t < 0 or type(data) is not bytes:
-                    # no checksum: a damaged row is recognised by what it cannot be (a
-                    # negative time reached the live view's unsigned stamp: a traceback)
-                    raise BagError(f'{str(f)!r} is corrupt: a message row with topic id '
-                                   f'{tid!r}, timestamp {t!r}, data of type '
-                                   f'{type(data).__name__} (expected a topic of the file, an '
-                                   'integer time >= 0 and bytes)')
-                # a recorder inserts one topic's messages as they arrive, so their rows and
-                # their times rise together; times that fall as the rows rise were rewritten
-                # (every timestamp reversed was read as a valid run by evaluate)
-                if rid < last_id.get(tid, -1):
-                    raise BagError(f'{str(f)!r} is corrupt: on {names[tid]} the message times '
-                                   'run backwards against the order the messages were '
-                                   'recorded in (altered? sqlite3 keeps no checksum)')
-                last_id[tid] = rid
-                yield names[tid], t, data
-        except sqlite3.DatabaseError as exc:
-            raise BagError(f'{str(f)!r} is not a readable rosbag2 sqlite3 file ({exc})'
-                           ) from None
-        finally:
-            con.close()
-
-
-#: every storage a bag may use, by rosbag2's ``storage_identifier``
-STORAGES: dict[str, Storage] = {s.name: s for s in (McapStorage(), Sqlite3Storage())}
-
-
-def get_registered_readers() -> list[str]:
-    """The storage identifiers this package reads (rosbag2's function of the same name)."""
-    return sorted(STORAGES)
-
-
-def storage_of(f: Path) -> Storage:
-    """The storage of a file, by its suffix or else its first bytes."""
-    for s in STORAGES.values():
-        if f.suffix == s.suffix:
-            return s
-    with open(f, 'rb') as fh:
-        head = fh.read(16)
-    for s in STORAGES.values():
-        if head.startswith(s.magic):
-            return s
-    if head.startswith(b'#ROSBAG'):
-        raise BagError(f'{str(f)!r} is a ROS 1 bag, not a rosbag2 bag')
-    raise BagError(f'{str(f)!r} is not a rosbag2 storage file ('
-                   + ' or '.join(s.suffix for s in STORAGES.values()) + ')')
-
-
-__all__ = ['STORAGES', 'Storage', 'TopicInfo', 'get_registered_readers', 'storage_of',
-           'normalise_qos', 'check_data_crc', 'crc_of', 'mcap_errors']
+__all__ = ['McapStorage', 'check_data_crc', 'crc_of', 'mcap_errors']

@@ -1,4 +1,4 @@
-"""servovalve_twin.bag.storages: an MCAP file's messages in log-time order, chunk by chunk where
+"""servovalve_twin.bag.storages.mcap_storage: an MCAP file's messages in log-time order, chunk by chunk where
 the chunks follow each other in time, through the mcap library's merge where they overlap --
 each checked against the mcap library's own log-time reader on files written by its writer."""
 
@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from servovalve_twin.bag import storages
+from servovalve_twin.bag.storages import mcap_storage as storages
 from servovalve_twin.bag.cdr import encode_float64_value
 from servovalve_twin.bag.storages import McapStorage
 from servovalve_twin.errors import BagError
