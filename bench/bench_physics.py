@@ -1,9 +1,10 @@
 """Physics speed: the 1.0 s paper scenario at DT = 1e-5 s (100 000 plant steps), ROS-free,
 one core, and what a user waits for around it.
 
-1. Per model, in a fresh process: the first call (the loop compiled ahead of time, or
-   numba loading it from its disk cache where that module is not built), the whole ``simulate(model, 'paper')`` call (median of --repeat), the compiled
-   loop alone on prebuilt inputs, us per plant step and the real-time factor of the whole call.
+1. Per model, in a fresh process: the first call (the loop compiled ahead of time, or numba
+   loading it from its disk cache where that module is not built), the whole
+   ``simulate(model, 'paper')`` call (median of --repeat), the compiled loop alone on prebuilt
+   inputs, us per plant step and the real-time factor of the whole call.
 2. Start-up of one CLI process, interleaved rounds, medians: ``python -c "import numpy,
    numba"`` (the floor of any numba program), the same plus one call of a trivial cached
    numba function (numba's own first-call set-up), ``servovalve-twin simulate --valve-model C2``

@@ -14,8 +14,8 @@ This module is the builder; the loader the physics uses (:func:`~.jitcache.aot_l
 named after the physics stamp (:func:`~.jitcache.physics_stamp`, a digest of every
 source of the compiled physics): after any edit of the physics its name no longer matches, it
 is not loaded, and the loops come from the JIT again -- which stays the fallback (a machine
-without the module, an editable install after a physics edit, the FMU) and the reference: the same Python
-source compiled by the same numba, and a test holds the two to the same bytes.
+without the module, an editable install after a physics edit, the FMU) and the reference:
+the same Python source compiled by the same numba, and a test holds the two to the same bytes.
 ``SERVOVALVE_TWIN_JIT=1`` in the environment uses the JIT even where the module exists.
 """
 

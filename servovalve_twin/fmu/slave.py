@@ -3,10 +3,11 @@
 ``servovalve-twin fmu`` packs this file into the FMU with ``eha_fmu.json`` (the valve model and
 control period it was built for), ``requirements.txt`` and a copy of the package's physics as
 resources (the package ``_servovalve_twin_fmu``: this file is the FMU's script, not a module
-of servovalve_twin to import). It runs in the importing tool's Python (pythonfmu FMUs need a Python to execute: the
-FMU says so, ``needsExecutionTool``), which must have numpy and numba (``requirements.txt``); a
-missing one is one message in the FMU's log naming what to install. The first instance in a
-process compiles the physics (numba; seconds), as the FMU is unpacked afresh by each run.
+of servovalve_twin to import). It runs in the importing tool's Python (pythonfmu FMUs need a
+Python to execute: the FMU says so, ``needsExecutionTool``), which must have numpy and numba
+(``requirements.txt``); a missing one is one message in the FMU's log naming what to install.
+The first instance in a process compiles the physics (numba; seconds), as the FMU is unpacked
+afresh by each run.
 
 Variables: inputs ``com`` [m], ``fr`` [N], ``psr`` [Pa] -- *discrete*, held over a
 communication step as the twin holds them over a control period (an importer must not

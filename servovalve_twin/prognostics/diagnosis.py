@@ -37,9 +37,9 @@ Confidence. A severity's 95 % interval comes from the fit's Jacobian, ``cov = s^
 hypothesis' own residuals: about ``n`` for a fit that leaves only white noise, so that the
 interval is then the spread of repeated flights (tested) -- or the catalog's bounds where the
 residuals do not move with the severity at the fit. The verdict's is joined with the
-likelihood-ratio interval along its severity (:func:`.fitting.ratio_interval`): a fit that stops on a
-flat stretch of the cost -- static friction beyond the break-away the run reaches -- has a
-zero Jacobian there and a Jacobian interval of zero width. With ``bootstrap`` = N, the
+likelihood-ratio interval along its severity (:func:`.fitting.ratio_interval`): a fit that
+stops on a flat stretch of the cost -- static friction beyond the break-away the run reaches --
+has a zero Jacobian there and a Jacobian interval of zero width. With ``bootstrap`` = N, the
 verdict's interval is instead from N refits to the fitted signals plus moving blocks (50 ms)
 of the residuals (percentiles).
 

@@ -453,8 +453,8 @@ def ratio_interval(problem: Problem, faults: Sequence[str], i: int, x: np.ndarra
 
 def bootstrap_intervals(problem: Problem, best, free: list[str], n: int,
                          seed: int) -> list[tuple[float, float]]:
-    """Percentile intervals (one per fault of ``best``, a diagnosis Candidate) of ``n`` refits to the fitted signals
-    plus moving blocks of the residuals."""
+    """Percentile intervals (one per fault of ``best``, a diagnosis Candidate) of ``n`` refits
+    to the fitted signals plus moving blocks of the residuals."""
     rng = np.random.default_rng(seed)
     m = len(problem.rows)
     resid = {s: problem.recorded[s] - best.fitted[s] for s in SIGNALS}

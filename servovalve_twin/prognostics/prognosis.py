@@ -301,7 +301,8 @@ def _robust_start(n: np.ndarray, s: np.ndarray) -> np.ndarray:
 def _weigh(n: np.ndarray, s: np.ndarray, sig: np.ndarray, fault: str) -> list[Trend]:
     w = 1.0 / sig
     h = FAULTS[fault].healthy
-    fits = [_constant(n, s, w), _weighted_line(n, s, w), _quadratic(n, s, w), _exponential(n, s, w, 0.0, 'exponential'),
+    fits = [_constant(n, s, w), _weighted_line(n, s, w), _quadratic(n, s, w),
+            _exponential(n, s, w, 0.0, 'exponential'),
             _exponential(n, s, w, h, 'offset exponential') if h != 0 else None, _step(n, s, w)]
     fits = [f for f in fits if f is not None]
     m = len(n)

@@ -1,5 +1,6 @@
-"""One configuration of a twin run (and what it gives back, :class:`TwinResult`), filled alike by ``servovalve-twin run`` (its options) and by
-the ``twin`` executable (its ``--ros-args -p`` parameters): :class:`TwinConfig`.
+"""One configuration of a twin run (and what it gives back, :class:`TwinResult`), filled alike
+by ``servovalve-twin run`` (its options) and by the ``twin`` executable (its ``--ros-args -p``
+parameters): :class:`TwinConfig`.
 
 Each option is declared once, below, with its help text and its type: the command line derives
 its ``--options`` from the fields, the executable the parameter names it accepts (the physical

@@ -295,4 +295,5 @@ def absolute_namespace(namespace: str) -> str:
     return ns
 
 
-__all__ = ['EXECUTORS', 'GraphClock', 'OwnerLeft', 'absolute_namespace', 'CLOCK_QOS', 'TICK_DEADLINE_S']
+__all__ = ['EXECUTORS', 'GraphClock', 'OwnerLeft', 'absolute_namespace', 'CLOCK_QOS',
+           'TICK_DEADLINE_S']

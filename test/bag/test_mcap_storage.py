@@ -1,6 +1,7 @@
-"""servovalve_twin.bag.storages.mcap_storage: an MCAP file's messages in log-time order, chunk by chunk where
-the chunks follow each other in time, through the mcap library's merge where they overlap --
-each checked against the mcap library's own log-time reader on files written by its writer."""
+"""servovalve_twin.bag.storages.mcap_storage: an MCAP file's messages in log-time order, chunk
+by chunk where the chunks follow each other in time, through the mcap library's merge where
+they overlap -- each checked against the mcap library's own log-time reader on files written by
+its writer."""
 
 from __future__ import annotations
 

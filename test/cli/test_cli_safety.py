@@ -376,8 +376,9 @@ def test_run_with_a_monitor_prints_its_verdict(tmp_path, capsys, monkeypatch):
     assert main(['run', '--valve-model', 'HD', '--monitor', 'SQ', '--no-bag']) == 0
     out = capsys.readouterr().out
     assert 'EHA monitor: no WARN, no ERROR; peak health_xj 0.0003279' in out
-    (tmp_path / 'leak.yaml').write_text('faults: [{at: 0.1, fault: leakage_growth, severity: 10.0}]\n'
-           'com: [[0.0, 0.02], [0.3, 0.03], [0.75, 0.02]]\nfr: [[0.0, 0.0], [0.2, 10400.0]]\n')
+    (tmp_path / 'leak.yaml').write_text(
+        'faults: [{at: 0.1, fault: leakage_growth, severity: 10.0}]\n'
+        'com: [[0.0, 0.02], [0.3, 0.03], [0.75, 0.02]]\nfr: [[0.0, 0.0], [0.2, 10400.0]]\n')
     assert main(['run', '--valve-model', 'HD', '--monitor', 'SQ', '--no-bag', '--scenario',
                  'leak.yaml']) == 0
     assert 'EHA monitor: first WARN at 0.' in capsys.readouterr().out

@@ -272,7 +272,8 @@ class _Bad(Algorithm):
 
 
 @pytest.mark.parametrize('how, fragment', [
-    ('init', 'failed in __init__: ZeroDivisionError'), ('exit', 'raised at t = 0.000 s: SystemExit'),
+    ('init', 'failed in __init__: ZeroDivisionError'),
+    ('exit', 'raised at t = 0.000 s: SystemExit'),
     ('bool', 'must return a number'), ('text', 'must return a number'),
     ('big', 'must return a number'), ('level7', "level 7: expected OK"),
     ('message', 'message must be a string'), ('key', 'string keys')])

@@ -27,7 +27,8 @@ def test_a_foxglove_client_receives_the_twins_topics(ros_context, tmp_path):
     with open(tmp_path / 'b' / 'b_0.mcap', 'rb') as fh:
         recorded = [(m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages(
             topics=['/xj'], log_time_order=True)]
-    assert [(stamp, data) for _, stamp, data in client.got] == recorded       # exact bytes, sim time
+    # exact bytes, simulated time
+    assert [(stamp, data) for _, stamp, data in client.got] == recorded
 
 
 def test_play_serves_a_bag_to_foxglove(ros_context):

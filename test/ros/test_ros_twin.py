@@ -481,9 +481,10 @@ def test_a_sim_time_node_beside_a_paced_twin_sees_every_timer_period(ros_context
 @pytest.mark.slow
 def test_two_namespaced_actuators_share_one_clock(ros_context, tmp_path):
     """Two twins in one graph: /left owns /clock (paced, starting once /right and the watcher
-    are there), /right follows it with a fault of its own. A watcher sees both state streams and one /clock publisher, never going back; each
-    bag is its own actuator's run bit for bit (the follower's lockstep does not depend on the
-    owner's pace), the fault in /right's only."""
+    are there), /right follows it with a fault of its own. A watcher sees both state streams
+    and one /clock publisher, never going back; each bag is its own actuator's run bit for bit
+    (the follower's lockstep does not depend on the owner's pace), the fault in /right's
+    only."""
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Float64

@@ -24,8 +24,8 @@ Adding a model -- the contract the tests enforce on every entry:
    with the paper figure it reproduces and what differs from the defaults of
    :class:`ValveModel`, and add its branch to :func:`valve_p12` under its position in the
    registry (its ``id``);
-3. the contract tests (``test/physics/test_valve_contract.py``) then run it at random points, through
-   ``simulate``, in the stateful plant, across a mid-run switch, in a short ROS twin run and
+3. the contract tests (``test/physics/test_valve_contract.py``) then run it at random points,
+   through ``simulate``, in the stateful plant, across a mid-run switch, in a short ROS twin run and
    in its bag, with no further change.
 """
 

@@ -1,6 +1,6 @@
 """Calibration of the simplified models' gains (XSS, GPN, GQN, GPQ, k) from the leak-free HD
-valve (doc/design/MODELS.md section 3): the C-models and SQ are driven by these numbers only, never by HD's
-geometry."""
+valve (doc/design/MODELS.md section 3): the C-models and SQ are driven by these numbers only,
+never by HD's geometry."""
 
 from __future__ import annotations
 
@@ -30,8 +30,9 @@ def _bisect(fn, lo: float, hi: float, target: float, n: int = 200) -> float:
 
 
 def calibrate(params: EhaParams) -> dict[str, float]:
-    """XSS, GPN, GQN, GPQ, k of the simplified models from the leak-free HD valve (doc/design/MODELS.md
-    section 3): the simplified models add leakage themselves through k = CLk*GPQ.
+    """XSS, GPN, GQN, GPQ, k of the simplified models from the leak-free HD valve
+    (doc/design/MODELS.md section 3): the simplified models add leakage themselves through k =
+    CLk*GPQ.
 
     - XSS from the mean slope of the zero-flow P12(XS) curve between -40 % and +40 % of PSRN:
       GP = 0.8*PSRN/(x(+40 %) - x(-40 %)), XSS = PSRN/GP;
