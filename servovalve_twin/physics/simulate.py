@@ -223,15 +223,7 @@ class EhaPlant:
         self.sensors: Sensors | None = None
         self.measured = np.zeros(len(SENSED))     # the sensors' readings, :data:`SENSED` order
         self._spec, self._keys = sensor_table(None, 1, self.params.DT)
-        self._load_tick()
-
-    def _load_tick(self) -> None:
-        """Run the model's tick once, evaluating only, on copies of the state: its loop is
-        loaded (or, without the compiled module, compiled: seconds) now, not at the first
-        control period -- a node built on this plant says it has started once it can tick,
-        and a Ctrl-C after that is not held up by a compile."""
-        self._tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
-                   float(self.params.PSRN), 0, np.empty(len(TICK_OUT)))
+        self.compile()
 
     def set_sensors(self, sensors: Sensors | None, control_period: float) -> None:
         """Measure with ``sensors`` (None: ideal), sampled on the grid of ``control_period``
@@ -277,7 +269,7 @@ class EhaPlant:
         self._kernel = new.kernel(self.params)
         self._kernel_arr = new.kernel_array(self.params)
         self._tick = tick_for(new.id)
-        self._load_tick()
+        self.compile()
 
     def set_params(self, params: EhaParams) -> None:
         """Continue with new parameters (a fault, a retune); the state is kept."""
@@ -309,8 +301,11 @@ class EhaPlant:
         return valve_response(self.model.id, self.s, self.vs, self._kernel_arr, fr, psr)
 
     def compile(self) -> None:
-        """Compile the tick loop for the current model now (numba compiles on first call),
-        on scratch copies of the state: the first real tick then costs what every tick costs."""
+        """Load the tick loop of the current model now -- the compiled module's, or, without
+        it, the JIT's, compiled (seconds) -- by a tick on scratch copies of the state: run when
+        the plant is built and when it changes model, so that a node built on it says it has
+        started once it can tick, the first real tick costs what every tick costs, and a Ctrl-C
+        is not held up by a compile."""
         self._tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
                  self.params.PSRN, 1, np.zeros(len(TICK_OUT)))
 

@@ -160,9 +160,6 @@ class Twin:
             for n in self.nodes:
                 self.executor.add_node(n)
             self.sim.executor = self.executor
-            self.plant.plant.compile()
-            if self.monitor is not None:
-                self.monitor.model.compile()
         except BaseException:          # a refusal, a failure or Ctrl-C during start-up
             if self.writer is not None:
                 self.writer.abort()

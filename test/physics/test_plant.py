@@ -197,8 +197,8 @@ def test_a_torque_motor_gain_loss_takes_that_share_of_the_spool_s_stroke(severit
 
 
 def test_a_plant_loads_its_tick_when_built_not_at_its_first_period(monkeypatch):
-    """EhaPlant runs its model's tick once, evaluating only, on copies of its state, when it is
-    built and when it changes model: the loop is loaded (or compiled: seconds without the
+    """EhaPlant runs its model's tick once on copies of its state (EhaPlant.compile) when it
+    is built and when it changes model: the loop is loaded (or compiled: seconds without the
     compiled module) before a node built on it says it has started, and a Ctrl-C is then not
     held up by a compile. The plant's own state is not touched."""
     from servovalve_twin.physics import simulate as sim
@@ -213,7 +213,7 @@ def test_a_plant_loads_its_tick_when_built_not_at_its_first_period(monkeypatch):
     plant = sim.EhaPlant('C2')
     assert len(calls) == 1
     mid, s, vs, n_sub, psr = calls[0]
-    assert n_sub == 0 and psr == plant.params.PSRN and mid == plant.model.id
+    assert psr == plant.params.PSRN and mid == plant.model.id
     assert s is not plant.s and vs is not plant.vs
     plant.set_valve_model('SQ')
-    assert len(calls) == 2 and calls[1][0] == plant.model.id and calls[1][3] == 0
+    assert len(calls) == 2 and calls[1][0] == plant.model.id
