@@ -130,10 +130,3 @@ def decode_float64(data: bytes) -> float:
     if len(data) < 12 or data[:2] != b'\x00\x01':
         raise ValueError(f'not a little-endian CDR std_msgs/Float64 ({len(data)} bytes)')
     return _F64.unpack_from(data, 4)[0]
-
-
-def decode_clock_ns(data: bytes) -> int:
-    if len(data) < 12 or data[:2] != b'\x00\x01':
-        raise ValueError(f'not a little-endian CDR rosgraph_msgs/Clock ({len(data)} bytes)')
-    sec, nsec = struct.unpack_from('<iI', data, 4)
-    return sec * 1_000_000_000 + nsec

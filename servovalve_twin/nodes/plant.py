@@ -18,7 +18,6 @@ from .process import spin_standalone
 from .topics import joint_state
 
 STATE_TOPICS = ('xs', 'xj', 'dxj')
-VALVE_TOPICS = ('p12', 'qj', 'p1', 'p2')
 
 
 class Plant(TwinNode):

@@ -309,9 +309,6 @@ class EhaPlant:
         self._tick(self.model.id, self.s.copy(), self.vs.copy(), self._kernel_arr, 0.0, 0.0,
                  self.params.PSRN, 1, np.zeros(len(TICK_OUT)))
 
-    def diagnostics(self) -> dict[str, Any]:
-        return self.model.run_totals(self.vs)
-
 
 __all__ = ['simulate', 'RunResult', 'EhaPlant', 'valve_response', 'effective_params',
            'CSV_COLUMNS', 'PORT_COLUMNS', 'SIGNAL_UNITS']

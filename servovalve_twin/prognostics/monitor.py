@@ -24,7 +24,7 @@ import dataclasses
 import functools
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -158,11 +158,6 @@ def calibrated_thresholds(model: str) -> dict[str, float]:
         raise TwinError(f'no calibrated monitor thresholds for {model!r} (have '
                         f'{sorted(cal)}); rebuild them with bench/calibrate_monitor.py')
     return dict(cal[model])
-
-
-def config_from(values: Mapping[str, Any]) -> HealthConfig:
-    fields = {f.name for f in dataclasses.fields(HealthConfig)}
-    return HealthConfig(**{k: float(v) for k, v in values.items() if k in fields})
 
 
 class MonitorAlgorithm(Algorithm):
