@@ -44,6 +44,9 @@ def _replace(path: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.')
     with os.fdopen(fd, 'w', encoding='utf-8') as fh:
         fh.write(text)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)            # a file's usual mode, not mkstemp's 0600
     os.replace(tmp, path)
 
 
