@@ -18,7 +18,14 @@ _ASKED: list[int] = []
 
 def _ask(signum, frame) -> None:
     _ASKED.append(signum)
+    # a second Ctrl-C while this one unwinds (a launch's, 50 ms later) is noted, not raised:
+    # raised inside the handler of the first it was a traceback and exit 1
+    signal.signal(signal.SIGINT, _note)
     raise KeyboardInterrupt
+
+
+def _note(signum, frame) -> None:
+    _ASKED.append(signum)
 
 
 def watch() -> None:
