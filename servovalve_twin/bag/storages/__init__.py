@@ -1,7 +1,7 @@
 """The storages a bag may use, one reader each, registered in :data:`STORAGES` -- in the spirit
-of rosbag2's storage plugins (``get_registered_readers()``): a new storage is one class here and
-one entry in the registry, and every command that takes a bag reads it through
-:func:`~.anybag.open_any_bag`.
+of rosbag2's storage plugins (``get_registered_readers()``): a new storage is a module of its
+own here (its :class:`~.base.Storage`) and one entry in the registry, and every command that
+takes a bag reads it through :func:`~servovalve_twin.bag.anybag.open_any_bag`.
 
 A storage reads *one file*: its topics and counts (:meth:`Storage.summary`), its messages in
 log-time order (:meth:`Storage.messages`) and the bag-level metadata records it carries
@@ -9,8 +9,8 @@ log-time order (:meth:`Storage.messages`) and the bag-level metadata records it 
 failure is one :class:`~servovalve_twin.errors.BagError` line; a CRC that does not hold is
 corruption, never read past.
 
-The registry is here; each format's reader is a module of its own (:mod:`.mcap_storage`,
-:mod:`.sqlite3_storage`) on the interface of :mod:`.base`.
+Here: the registry; :mod:`.mcap_storage` and :mod:`.sqlite3_storage`: the formats' readers, on
+the interface of :mod:`.base`.
 """
 
 from __future__ import annotations

@@ -11,7 +11,6 @@ import zlib
 from pathlib import Path
 from typing import NamedTuple
 
-
 from ...errors import BagError
 from .base import _CORRUPT, Storage, Summary, TopicInfo, normalise_qos
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-
 from ...errors import BagError
 from .base import Storage, TopicInfo, normalise_qos
 
