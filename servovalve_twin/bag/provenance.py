@@ -111,7 +111,9 @@ class Provenance:
         from ..physics.params import DEFAULTS, PARAM_NAMES
         values = {k: v for k, v in self.params.items() if k in PARAM_NAMES}
         try:
-            return DEFAULTS.replace(**values)
+            # the record holds every parameter resolved: the derived ones equal to their
+            # derivation derive again (EhaParams.derived_again)
+            return DEFAULTS.replace(**values).derived_again()
         except TwinError as exc:
             raise BagError(f'bag {str(where)!r}: its recorded parameters are invalid: {exc}'
                            ) from None

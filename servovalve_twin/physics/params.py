@@ -37,6 +37,10 @@ def _p(default, unit: str, lo: float, hi: float, doc: str, *, lo_open: bool = Fa
         readers=readers))
 
 
+#: the derived parameters (None: derived from the others) and the property that resolves each
+DERIVED = {'GM': 'gm', 'V0': 'v0', 'C4_alpha': 'c4_alpha', 'XSS': 'xss', 'GPQ': 'gpq'}
+
+
 @dataclasses.dataclass(frozen=True)
 class EhaParams:
     """All parameters of the EHA plant, its valve models and the integrator (SI units)."""
@@ -166,8 +170,22 @@ class EhaParams:
         if name not in PARAM_NAMES:
             raise ParameterError(f'unknown parameter {name!r}; expected one of '
                                  f'{sorted(PARAM_NAMES, key=str.lower)}')
-        derived = {'GM': 'gm', 'V0': 'v0', 'C4_alpha': 'c4_alpha', 'XSS': 'xss', 'GPQ': 'gpq'}
-        return getattr(self, derived.get(name, name))
+        return getattr(self, DERIVED.get(name, name))
+
+    def derived_again(self) -> 'EhaParams':
+        """A copy in which each derived parameter that is given but equals its derivation
+        from the others is left to derive again -- so that a change of what it derives from
+        derives it anew. A record of every parameter resolved (a bag's provenance) gives them
+        all: a leak's CLk x 50 on such a design kept C4_alpha at the healthy 1/(1+k), beyond
+        the C4 run's limit, and a flight calibration of the shipped example stopped there. A
+        value that differs from its derivation was chosen, and stays."""
+        given = {n: getattr(self, n) for n in DERIVED if getattr(self, n) is not None}
+        if not given:
+            return self
+        free = self.replace(**{n: None for n in given})
+        keep = {n: v for n, v in given.items()
+                if not math.isclose(free.value(n), v, rel_tol=1e-9, abs_tol=0.0)}
+        return free.replace(**keep) if keep else free
 
     def resolved(self) -> dict[str, Any]:
         """Every parameter by name with derived values filled in (provenance, ROS, docs)."""

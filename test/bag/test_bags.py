@@ -305,3 +305,15 @@ def test_a_fresh_hd_run_records_the_reference_bags_messages(ros_context, tmp_pat
         assert [(c.message_start_time, c.message_end_time, c.uncompressed_size)
                 for c in a.chunk_indexes] == [(c.message_start_time, c.message_end_time,
                                                c.uncompressed_size) for c in b.chunk_indexes]
+
+
+def test_a_bags_design_derives_its_derived_parameters_again():
+    """Provenance.eha_params of a run's record: the design, with its derived parameters left
+    to derive (a flight calibration's leak units of the shipped example stopped on C4_alpha)."""
+    from servovalve_twin.bag.provenance import Provenance
+    from servovalve_twin.config import load_scenario
+    from servovalve_twin.physics.params import DEFAULTS
+    prov = Provenance.build('HD', load_scenario('paper'), DEFAULTS.replace(M=450.0), 1e-3)
+    design = prov.eha_params()
+    assert design.M == 450.0 and design.C4_alpha is None and design.XSS is None
+    design.replace(CLk=DEFAULTS.CLk * 50)                     # no longer refused

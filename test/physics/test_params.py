@@ -134,3 +134,22 @@ def test_replace_checks_what_it_changes_and_leaves_the_kernels_behind():
         q.replace(FDJ=q.FSJ * 2)                       # a cross check on a changed field
     with pytest.raises(ParameterError, match='out of range'):
         q.replace(DT=0.0)
+
+
+def test_derived_parameters_equal_to_their_derivation_derive_again():
+    """A design given every parameter resolved (a bag's provenance records them so) pins the
+    derived ones: a leak of 50 x CLk then kept C4_alpha at the healthy 1/(1+k), beyond the C4
+    run's limit 2/(1+k), and was refused. derived_again leaves each one equal to its
+    derivation to derive anew (C4_alpha = 1/(1+k) of the new k, by hand), and keeps one that
+    was chosen."""
+    from servovalve_twin.errors import ParameterError
+    pinned = DEFAULTS.replace(**DEFAULTS.resolved())
+    with pytest.raises(ParameterError, match='C4_alpha'):
+        pinned.replace(CLk=DEFAULTS.CLk * 50)
+    free = pinned.derived_again()
+    assert all(getattr(free, n) is None for n in ('GM', 'V0', 'C4_alpha', 'XSS', 'GPQ'))
+    leaky = free.replace(CLk=DEFAULTS.CLk * 50)
+    assert leaky.c4_alpha == pytest.approx(1.0 / (1.0 + 50 * DEFAULTS.CLk * DEFAULTS.gpq))
+    chosen = pinned.replace(C4_alpha=0.5).derived_again()
+    assert chosen.C4_alpha == 0.5 and chosen.XSS is None
+
