@@ -7,11 +7,13 @@ callback (importlib's module locks have one) Python prints "Exception ignored" a
 the node then started and ran for ever, deaf to the Ctrl-C it had been sent (seen once in 60
 signals at random instants of a plant's start). So the entry points install :func:`watch`
 first: it raises KeyboardInterrupt as before *and* remembers the request, and each executable,
-once its own handler is in place, asks :func:`asked` whether a stop came before it."""
+once its own handler is in place (:func:`handle`), asks :func:`asked` whether a stop came
+before it."""
 
 from __future__ import annotations
 
 import signal
+from typing import Any, Callable
 
 _ASKED: list[int] = []
 
@@ -38,4 +40,14 @@ def asked() -> bool:
     return bool(_ASKED)
 
 
-__all__ = ['watch', 'asked']
+def handle(request_stop: Callable[..., Any]) -> dict[int, Any]:
+    """Hand SIGINT and SIGTERM to ``request_stop`` -- and call it at once (without
+    arguments) where a Ctrl-C came while starting: the one way an executable takes its signals
+    over. Returns the handlers it replaced (to restore)."""
+    old = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    if asked():
+        request_stop()
+    return old
+
+
+__all__ = ['watch', 'asked', 'handle']

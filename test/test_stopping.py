@@ -41,3 +41,23 @@ def test_a_ctrl_c_swallowed_by_python_is_still_remembered(watched):
     ref = weakref.ref(part, lambda r: signal.raise_signal(signal.SIGINT))  # noqa: F841
     del part
     assert stopping.asked()
+
+
+def test_handle_takes_both_signals_and_acts_on_a_stop_asked_before(watched):
+    """handle() gives SIGINT and SIGTERM to the executable's handler, returns the ones it
+    replaced, and calls the handler at once where a Ctrl-C came while starting (a node
+    otherwise ran for ever after a swallowed one)."""
+    calls = []
+    old = stopping.handle(lambda *a: calls.append(a))
+    try:
+        assert calls == [] and set(old) == {signal.SIGINT, signal.SIGTERM}
+        signal.raise_signal(signal.SIGTERM)
+        assert len(calls) == 1
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    stopping._ASKED.append(signal.SIGINT)       # a Ctrl-C before, swallowed by Python
+    old = stopping.handle(lambda *a: calls.append(a))
+    for sig, h in old.items():
+        signal.signal(sig, h)
+    assert calls[-1] == ()

@@ -140,10 +140,7 @@ class Play(Command):
                            wait_for_subscribers=args.wait_for_subscribers)
         opts.check()
         stop = []
-        old = {sig: signal.signal(sig, lambda *_: stop.append(True))
-               for sig in (signal.SIGINT, signal.SIGTERM)}
-        if stopping.asked():            # a Ctrl-C while starting that Python swallowed
-            stop.append(True)
+        old = stopping.handle(lambda *_: stop.append(True))
         context = Context()
         # no arguments for rcl: by default it reads sys.argv, and took this command's own
         # values (--remap FROM:=TO, a --topics value) for remap rules of its own

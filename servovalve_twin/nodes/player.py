@@ -425,7 +425,6 @@ def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None 
 def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin player --ros-args -p bag:=DIR [-p rate:=2.0] [-p clock:=40.0]
     [-p topics:="['/xj']"] [-p loop:=true] ...``."""
-    import signal
     import rclpy
     from .rosargs import asks_for_help, init_context, ros_parameters, stray_arguments
     argv = list(sys.argv if args is None else args)
@@ -441,10 +440,7 @@ def main(args: Sequence[str] | None = None) -> int:
         print(usage, file=sys.stderr)
         return 2
     stop = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.append(True))
-    if stopping.asked():                # a Ctrl-C while starting that Python swallowed
-        stop.append(True)
+    stopping.handle(lambda *_: stop.append(True))
     context, argv = init_context(argv)
     fields = [f.name for f in dataclasses.fields(PlayOptions)]
     try:

@@ -4,7 +4,6 @@ shutdown in order."""
 
 from __future__ import annotations
 
-import signal
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
@@ -65,10 +64,7 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
 
     def request_stop(*_):
         stop.append(True)
-    signal.signal(signal.SIGTERM, request_stop)
-    signal.signal(signal.SIGINT, request_stop)
-    if stopping.asked():                # a Ctrl-C while starting that Python swallowed
-        stop.append(True)
+    stopping.handle(request_stop)
     try:
         # parsed first on their own: rcl_init would log its own error line before refusing
         remove_ros_args(argv)

@@ -451,12 +451,7 @@ def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'pape
     """Build, run and close a twin; SIGINT/SIGTERM finish the bag and return early."""
     twin = Twin(valve_model, scenario, overrides, control_period=control_period, bag=bag,
                 **kwargs)
-    old = {}
-    if handle_signals:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            old[sig] = signal.signal(sig, twin.request_stop)
-        if stopping.asked():            # a Ctrl-C while starting that Python swallowed
-            twin.request_stop()
+    old = stopping.handle(twin.request_stop) if handle_signals else {}
     try:
         return twin.run(on_tick)
     finally:

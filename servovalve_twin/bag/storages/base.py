@@ -1,21 +1,15 @@
 """What every storage shares: the :class:`Storage` interface, a topic's :class:`TopicInfo`,
-the QoS profiles of any rosbag2 version in the v9 names (:func:`normalise_qos`), and what a
-damaged file raises inside a reader (``_CORRUPT``)."""
+and the QoS profiles of any rosbag2 version in the v9 names (:func:`normalise_qos`)."""
 
 from __future__ import annotations
 
 import dataclasses
-import struct
 from pathlib import Path
 from typing import Any, Iterator
 
 import yaml
 
 from .. import safe_load
-
-# what a damaged file raises inside the mcap library besides its own McapError
-_CORRUPT = (EOFError, struct.error, ValueError, KeyError, IndexError, UnicodeDecodeError,
-            MemoryError, OverflowError)
 
 # rmw's enums, as rosbag2 versions <= 8 wrote them (rmw/types.h)
 _HISTORY = {0: 'system_default', 1: 'keep_last', 2: 'keep_all', 3: 'unknown'}

@@ -12,7 +12,11 @@ from pathlib import Path
 from typing import NamedTuple
 
 from ...errors import BagError
-from .base import _CORRUPT, Storage, Summary, TopicInfo, normalise_qos
+from .base import Storage, Summary, TopicInfo, normalise_qos
+
+# what a damaged file raises inside the mcap library besides its own McapError
+_CORRUPT = (EOFError, struct.error, ValueError, KeyError, IndexError, UnicodeDecodeError,
+            MemoryError, OverflowError)
 
 
 def mcap_errors() -> tuple[type[BaseException], ...]:
