@@ -26,6 +26,12 @@ def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
         target = getattr(importlib.import_module(module), func)
     except KeyboardInterrupt:
         _interrupted(ros)
+    except Exception:
+        # a Ctrl-C inside a C extension's initialisation (rclpy's) comes out as its
+        # ImportError ('initialization failed'): interrupted all the same
+        if stopping.asked():
+            _interrupted(ros)
+        raise
     if not ros:
         return target()
     try:
