@@ -595,7 +595,8 @@ def resolve_entry(cal: Mapping[str, Any], fault: str, scenario: str | None = Non
     from .rules import ONSET_ENTRY
     by = cal.get('by_scenario') or {}
     found = [(g, e) for g in groups_of(scenario)
-             if (e := (cal.get(POOLED) if g == POOLED else by.get(g, {})).get(fault)) is not None]
+             if (e := (cal.get(POOLED) or {} if g == POOLED else by.get(g, {})).get(fault))
+             is not None]
     if not found:
         return None, None
     group, own = found[0]

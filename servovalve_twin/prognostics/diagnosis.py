@@ -184,7 +184,7 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         c.fault for c in candidates[1:] if len(c.faults) == 1
         and c.score - best.score < PAIR_EVIDENCE and _detectable(c, cal=cal, scenario=scenario)]
     onset_fit = fit_onset(problem, candidates, n, n_eff,
-                          lambda f, s: _unbiased(cal, f, s, entry),
+                          lambda f, s: reported_severity(cal, f, s, entry),
                           widen=onset_widen(cal, entry), rivals=rivals) if onset else None
     onset_profile = onset_fit.pop('profile', None) if onset_fit else None
     # a fault that may have begun any time up to the onset interval's end: its severity is
@@ -540,16 +540,17 @@ def _one_sided(fault: str, interval: tuple[float, float]) -> str:
     return f'{fault} {">=" if up else "<="} {near:.4g}'
 
 
-def _unbiased(cal: Mapping[str, Any] | None, fault: str, severity: float,
-              scenario: str | None) -> float:
-    """``severity`` less the model's calibrated bias on ``fault`` (the scenario's own entry
-    where there is one); unchanged without a calibration of the fault."""
-    from .calibration import bias_at, fault_calibration, from_g, to_g
-    c = fault_calibration(cal, fault, scenario) if cal is not None else None
-    if c is None:
+def reported_severity(cal: Mapping[str, Any] | None, fault: str, severity: float,
+                      scenario: str | None) -> float:
+    """The severity a verdict states for a fit of ``severity``: less the calibrated bias of
+    ``fault`` (the scenario's own entry where there is one), kept within the catalog's range
+    (:func:`model_form_estimate`'s); unchanged without a calibration of the fault. The verdict
+    floor of a flight's calibration and the detection limits are sizes in it, so that a fault
+    is named only where its stated size clears them (two healthy units of a sine flight were
+    named a gain loss fitted above the floor but stated at 0.0: measured)."""
+    if cal is None:
         return severity
-    g = to_g(fault, severity)
-    return from_g(fault, g - bias_at(c, g))
+    return model_form_estimate(cal, fault, severity, (severity, severity), scenario)[0]
 
 
 def _verdict_candidate(candidates: list[Candidate], by_name: Mapping[str, Candidate],
@@ -573,15 +574,15 @@ def _detectable(c: Candidate, fraction: float = DETECTABLE,
                 cal: Mapping[str, Any] | None = None, scenario: str | None = None) -> bool:
     """Every fault of ``c`` of a size worth reporting: beyond the verdict floor of the flight's
     own calibration where ``cal`` is one (:mod:`.flight_calibration`: what no healthy unit of
-    this flight and design fitted), else :func:`sized`, after the model-form correction of
-    ``cal`` where one is given."""
+    this flight and design fitted), else :func:`sized` -- either on the size the verdict would
+    state (:func:`reported_severity`)."""
     out = True
     for f, s in zip(c.faults, c.severities):
-        beyond = above_floor(cal, f, s) if fraction == DETECTABLE else None
-        out = out and (beyond if beyond is not None else
-                       sized(f, _unbiased(cal, f, s, scenario), fraction))
+        size = reported_severity(cal, f, s, scenario)
+        beyond = above_floor(cal, f, size) if fraction == DETECTABLE else None
+        out = out and (beyond if beyond is not None else sized(f, size, fraction))
     return out
 
 
 __all__ = ['diagnose', 'Diagnosis', 'Candidate', 'DIAGNOSABLE', 'HEALTHY', 'UNEXPLAINED',
-           'model_form_estimate']
+           'model_form_estimate', 'reported_severity']

@@ -21,9 +21,10 @@ What is fitted (:func:`fit`), from their diagnoses with the model and free nuisa
   calibration's method (:func:`.calibration.fit_calibration`), as the flight's own entry
   (``own``);
 - the verdict floor (``verdict_fraction``): the largest size -- as a fraction of the way to its
-  alarm value in its coordinate ``g`` -- of the fault any healthy unit of this flight would
-  have been named with: the best-scoring hypothesis where that is a fault scoring better than
-  healthy (0 where healthy scores best). ``diagnose`` names a run's best-scoring fault only
+  alarm value in its coordinate ``g``, the size the verdict would state, less the bias above
+  (:func:`stated_sizes`) -- of the fault any healthy unit of this flight would have been
+  named with: the best-scoring hypothesis where that is a fault scoring better than healthy
+  (0 where healthy scores best). ``diagnose`` names a run's best-scoring fault only
   beyond it (and says healthy otherwise: healthy, or below what this flight can show); by
   exchangeability a healthy unit of this flight and design is named a fault with probability
   at most ``1/(n + 1)`` (n healthy units) -- a test with a stated false-alarm rate, in place of
@@ -60,7 +61,7 @@ from .parallel import map_unordered
 from .rules import fraction
 
 #: the method's version: a cache entry of another is not read (its key differs)
-VERSION = 3
+VERSION = 4
 #: the units per fault and level (the healthy ones: twice as many per level)
 DEFAULT_UNITS = 3
 #: the nuisance spread of the units, as a multiple of the documented one
@@ -136,9 +137,10 @@ def run_unit(job: tuple, scenario: Mapping[str, Any], design: EhaParams, model: 
     healthy = next(c for c in d.candidates if c.fault == HEALTHY)
     top = min(d.candidates, key=lambda c: c.score)
     # the fault this unit would be named with, whatever the floor: the best-scoring
-    # hypothesis where it is a fault scoring better than healthy
+    # hypothesis where it is a fault scoring better than healthy, as fitted (:func:`fit`
+    # sizes it as the verdict would state it, once the flight's bias is known)
     best = None if top.fault == HEALTHY or len(top.faults) != 1 or \
-        top.score >= healthy.score else [top.fault, fraction(top.fault, top.severities[0])]
+        top.score >= healthy.score else [top.fault, float(top.severities[0])]
     return dict(unit_record(d, fault, truth), id=_job_id(job), level=q, scenario=OWN,
                 best=best)
 
@@ -176,11 +178,31 @@ def revealed_from(records: Iterable[Mapping[str, Any]], fault: str, u: float
     return found
 
 
-def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str], alpha: float = ALPHA
-        ) -> dict[str, Any]:
+def stated_sizes(records: Iterable[Mapping[str, Any]], cal: Mapping[str, Any]
+                 ) -> list[dict[str, Any]]:
+    """``records`` with each ``best`` (a fault and its fitted severity) as the fault and the
+    fraction of the way to its alarm value of the size ``diagnose`` would state with ``cal``
+    (:func:`.diagnosis.reported_severity`, the flight's own entry): the floor and the verdict
+    then test one statistic. (The floor read fitted sizes while the verdict stated corrected
+    ones: 2 of 104 healthy units of the bench were named a gain loss stated at 0.0.)"""
+    from .diagnosis import reported_severity
+    out = []
+    for r in records:
+        best = r.get('best')
+        if best:
+            f, s = best
+            best = [f, fraction(f, reported_severity(cal, f, s, OWN))]
+        out.append(dict(r, best=best))
+    return out
+
+
+def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str], alpha: float = ALPHA,
+        model: str | None = None, free: Sequence[str] = ()) -> dict[str, Any]:
     """The calibration entry of a flight from its units' records, its intervals at
-    miscoverage ``alpha``."""
+    miscoverage ``alpha``; ``model`` and ``free``: the fit's, whose packaged pooled entries
+    ``diagnose`` applies beside the flight's own (:func:`with_pooled`; None: none)."""
     cal = fit_calibration(records, alpha=alpha)
+    records = stated_sizes(records, with_pooled(dict(cal), model, free) if model else cal)
     u = verdict_fraction(records)
     cal['verdict_fraction'] = u
     cal['healthy_floor'] = {f: u * abs(to_g(f, FAULTS[f].demo)) for f in faults}
@@ -272,7 +294,7 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
             out.write(json.dumps(rec) + '\n')
             out.flush()
     # (in the units' order, not as they finished: the same units give the same entry)
-    cal = fit([done[k] for k in sorted(done)], faults, alpha)
+    cal = fit([done[k] for k in sorted(done)], faults, alpha, model, free)
     cal['about'] = dict(version=VERSION, key=key, model=model, free=sorted(free),
                         units=units, seed=seed, faults=faults, spread=SPREAD, alpha=alpha,
                         levels=list(LEVELS), inputs=_inputs(scenario),
@@ -284,4 +306,5 @@ def calibrate_flight(scenario: Mapping[str, Any], design: EhaParams, *, model: s
 
 
 __all__ = ['calibrate_flight', 'flight_key', 'cached', 'with_pooled', 'jobs', 'unit_seed',
-           'verdict_fraction', 'revealed_from', 'fit', 'cache_dir', 'VERSION', 'OWN']
+           'verdict_fraction', 'revealed_from', 'stated_sizes', 'fit', 'cache_dir', 'VERSION',
+           'OWN']

@@ -15,7 +15,7 @@ from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics import flight_calibration as fc
 from servovalve_twin.prognostics import rules
-from servovalve_twin.prognostics.calibration import to_g
+from servovalve_twin.prognostics.calibration import calibration_for, to_g
 
 FLIGHT = {'duration': 0.3, 'com': [[0.0, 0.0], [0.05, 0.02]], 'fr': [[0.0, 0.0], [0.1, 3000.0]],
           'psr': [[0.0, 2.0e7]]}
@@ -95,9 +95,12 @@ def test_a_fault_is_revealed_from_the_lowest_level_all_its_units_above_were_name
                             floor) == 1.0
     assert fc.revealed_from(recs + [_leak(1.0, None)], 'leakage_growth', floor) is None
     assert fc.revealed_from(recs, 'supply_loss', floor) is None
-    # in the entry: as a severity of the fault, None where not revealed
-    healthy = [_healthy(['leakage_growth', floor])]
-    cal = fc.fit(healthy + recs + [_leak(0.3, None)], ['leakage_growth', 'supply_loss'])
+    # in the entry (from the records' fitted severities: a leak of 10^x is x of the way; no
+    # unit has an estimate, so no bias is taken off): as a severity, None where not revealed
+    healthy = [_healthy(['leakage_growth', 10 ** floor])]
+    fitted = [_leak(q, ['leakage_growth', 10 ** 0.5]) for q in (0.3, 0.6, 1.0) for _ in range(3)]
+    cal = fc.fit(healthy + fitted + [_leak(0.3, None)], ['leakage_growth', 'supply_loss'])
+    assert cal['verdict_fraction'] == pytest.approx(floor)
     assert cal['revealed_from'] == {'leakage_growth': pytest.approx(10 ** 0.6),
                                     'supply_loss': None}
 
@@ -120,13 +123,37 @@ def test_the_verdict_uses_the_flight_s_floor():
     assert _verdict_candidate(ranked, by_name, {'verdict_fraction': 0.1}, 'own') is leak
 
 
+def test_the_floor_and_the_verdict_test_the_size_the_verdict_states():
+    """A flight whose own units read a gain loss 0.1 high in ``g`` (of 0.7): a healthy unit
+    fitted at 0.14 (g 0.2) is sized 0.1 of the way for the floor, and a run fitted at 0.05
+    (stated 0.0, the bias taking it past healthy) is never named, even over a floor of 0; one
+    fitted at 0.14 is named over a floor of 0.05 and not over 0.12 (its fitted 0.2 would be)."""
+    from types import SimpleNamespace
+    from servovalve_twin.prognostics.diagnosis import _verdict_candidate
+    own = {'torque_motor_gain_loss': dict(bias=0.1, sigma=0.01, units=30)}
+    cal = {'faults': {}, 'by_scenario': {'own': own}}
+    sized = fc.stated_sizes([_healthy(['torque_motor_gain_loss', 0.14]), _healthy(None)], cal)
+    assert sized[0]['best'] == ['torque_motor_gain_loss', pytest.approx(0.1)]
+    assert sized[1]['best'] is None
+    assert fc.verdict_fraction(sized) == pytest.approx(0.1)
+    healthy = SimpleNamespace(fault='healthy', faults=(), severities=(), score=0.0)
+    loss = SimpleNamespace(fault='torque_motor_gain_loss', faults=('torque_motor_gain_loss',),
+                           severities=(0.05,), score=-50.0)
+    ranked = [loss, healthy]
+    by_name = {c.fault: c for c in ranked}
+    assert _verdict_candidate(ranked, by_name, dict(cal, verdict_fraction=0.0), 'own') is healthy
+    loss.severities = (0.14,)
+    assert _verdict_candidate(ranked, by_name, dict(cal, verdict_fraction=0.05), 'own') is loss
+    assert _verdict_candidate(ranked, by_name, dict(cal, verdict_fraction=0.12), 'own') is healthy
+
+
 def _fake_unit(calls):
     def run_unit(job, scenario, design, model, free, control_period, faults):
         calls.append(job)
         fault, q, r, seed = job
         if fault is None:
             return dict(id=fc._job_id(job), fault=None, level=0.0, truth=None, scenario='own',
-                        named=None, rms=1.0, best=['null_bias', 0.01 * (r + 1)])
+                        named=None, rms=1.0, best=['null_bias', -0.005 * 0.01 * (r + 1)])
         truth = 1.0 + q if fault == 'leakage_growth' else q * 0.1
         return dict(id=fc._job_id(job), fault=fault, level=q, truth=truth, scenario='own',
                     named=fault, rms=1.0, best=None, estimate=truth * 1.01, se=0.01)
@@ -136,7 +163,8 @@ def _fake_unit(calls):
 def test_an_interrupted_calibration_resumes_and_is_cached(tmp_path, monkeypatch):
     """Ctrl-C after 5 units: they are kept (a partial file); the rerun runs only the others,
     then the entry is cached and a third call runs nothing. The entry states the floor (the
-    fake healthy units' largest, 0.06) and its own key."""
+    fake healthy units' largest null bias, 0.06 of the way to -5 mA, less the packaged pooled
+    bias the verdict would take off: no unit of its own) and its own key."""
     monkeypatch.setenv(fc.CACHE_ENV, str(tmp_path))
     calls = []
     fake = _fake_unit(calls)
@@ -156,7 +184,9 @@ def test_an_interrupted_calibration_resumes_and_is_cached(tmp_path, monkeypatch)
     cal, path = fc.calibrate_flight(FLIGHT, DEFAULTS, **kw)
     total = len(fc.jobs(['leakage_growth'], 1, 0))
     assert len(calls) == total                  # 5 before, the rest now: none twice
-    assert cal['verdict_fraction'] == pytest.approx(0.06) and cal['healthy_units'] == 6
+    pooled = calibration_for('SQ', [])['faults']['null_bias']['bias']
+    assert cal['verdict_fraction'] == pytest.approx(abs(-0.06 - pooled))
+    assert cal['healthy_units'] == 6
     assert json.loads(path.read_text())['about']['key'] == path.stem
     assert not partial[0].exists()
     fc.calibrate_flight(FLIGHT, DEFAULTS, **kw)
