@@ -24,14 +24,14 @@ import sys
 
 CHILD = '''
 import json, sys, tempfile, os
-from servovalve_twin.twin import run_twin
+from servovalve_twin.twin import TwinConfig, run_twin
 from servovalve_twin.runs import simulate
 model, bag, executor, repeat = sys.argv[1], sys.argv[2] == '1', sys.argv[3], int(sys.argv[4])
 monitor = sys.argv[5] if sys.argv[5] != '-' else None
 tmp = tempfile.mkdtemp()
 def one(i):
-    r = run_twin(model, 'paper', bag=os.path.join(tmp, f'b{i}') if bag else None,
-                 executor=executor, keep_values=False, monitor=monitor)
+    r = run_twin(TwinConfig(model, 'paper', bag=os.path.join(tmp, f'b{i}'), record=bag,
+                            monitor=monitor or ''), executor=executor, keep_values=False)
     return r.wall_s
 one('warm')
 walls = [one(i) for i in range(repeat)]
@@ -42,7 +42,7 @@ print(json.dumps(dict(walls=walls, sims=sims)))
 
 BREAKDOWN = '''
 import json, sys, tempfile, os, time
-from servovalve_twin.twin import lockstep, run_twin
+from servovalve_twin.twin import TwinConfig, lockstep, run_twin
 from servovalve_twin.physics.simulate import EhaPlant
 from servovalve_twin.config import load_scenario
 import numpy as np
@@ -62,8 +62,8 @@ def twin(bag, turns, i):
     if not turns:
         lockstep.GRAPH_PERIOD_NS = 10**12          # one turn, at t = 0
     try:
-        return run_twin('C2', 'paper', keep_values=False,
-                        bag=os.path.join(tmp, f'b{i}') if bag else None).wall_s
+        return run_twin(TwinConfig('C2', 'paper', bag=os.path.join(tmp, f'b{i}'), record=bag),
+                        keep_values=False).wall_s
     finally:
         lockstep.GRAPH_PERIOD_NS = saved
 twin(True, True, 'warm')

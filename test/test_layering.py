@@ -13,7 +13,7 @@ from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.params import PARAM_NAMES, names_read_by
 from servovalve_twin.runs import simulate
-from servovalve_twin.twin import Twin, run_twin
+from servovalve_twin.twin import Twin, TwinConfig, run_twin
 from conftest import ROOT
 
 PACKAGE = ROOT / 'servovalve_twin'
@@ -42,7 +42,8 @@ def test_scheduled_fault_on_every_parameter_group_twin_equals_simulate(ros_conte
     parameter (GAP, CorM) changed simulate() but not the ROS run. Now each event goes to the
     nodes that read its parameter: the twin equals simulate bit for bit, and the fault shows."""
     scenario = dict(HALF, faults=[{'at': 0.1, 'param': param, 'value': value}])
-    twin = run_twin(model, scenario, context=ros_context, handle_signals=False)
+    twin = run_twin(TwinConfig(model, scenario, record=False), context=ros_context,
+                    handle_signals=False)
     ref = simulate(model, scenario, ecu_period=1e-3)
     healthy = simulate(model, HALF, ecu_period=1e-3)
     for col in ref.columns:
@@ -61,7 +62,7 @@ def test_each_node_declares_only_what_it_reads(ros_context):
     assert set(names_read_by('ecu')) == {'GAP', 'CorM'}
     assert set(names_read_by('ecu')) | set(names_read_by('plant')) == set(PARAM_NAMES)
     assert set(names_read_by('ecu')) & set(names_read_by('plant')) == {'CorM'}
-    with Twin('C2', HALF, context=ros_context, monitor='C2') as twin:
+    with Twin(TwinConfig('C2', HALF, monitor='C2', record=False), context=ros_context) as twin:
         declared = {n.get_name(): {p for p in PARAM_NAMES if n.has_parameter(p)}
                     for n in (twin.ecu, twin.plant, twin.monitor, twin.command_generator,
                               twin.load_supply)}
@@ -79,7 +80,7 @@ def test_a_fault_never_reaches_the_monitor(ros_context):
     """The monitor models the nominal actuator: a scheduled fault changes the plant's
     parameters, not the monitor's."""
     scenario = dict(HALF, faults=[{'at': 0.1, 'fault': 'leakage_growth', 'severity': 10.0}])
-    with Twin('HD', scenario, context=ros_context, monitor='C2') as twin:
+    with Twin(TwinConfig('HD', scenario, monitor='C2', record=False), context=ros_context) as twin:
         twin.run()
         assert twin.plant.plant.params.CLk == pytest.approx(2.0e-12)
         assert twin.monitor.model.params.CLk == pytest.approx(2.0e-13)
@@ -94,7 +95,7 @@ def test_read_bag_after_a_mid_run_switch_keeps_the_whole_run(ros_context, tmp_pa
     def switch(k, twin):
         if k == 100:
             assert twin.plant.set_parameters([Parameter('valve_model', value='HD')])[0].successful
-    with Twin('C2', short, context=ros_context, bag=tmp_path / 'switch') as twin:
+    with Twin(TwinConfig('C2', short, bag=tmp_path / 'switch'), context=ros_context) as twin:
         result = twin.run(on_tick=switch)
     bag = read_bag(tmp_path / 'switch')
     assert len(result.signals['t']) == len(bag.signals['t']) == 201

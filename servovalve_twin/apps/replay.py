@@ -132,8 +132,10 @@ def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path |
            overrides: Mapping[str, Any] | None = None, overwrite: bool = False,
            **twin_kwargs) -> tuple[AnyBag, Any, dict]:
     """Replay ``bag``; returns (the original, opened; the new :class:`~..twin.TwinResult`;
-    metrics of the new run against the original). Both bags are read block by block."""
+    metrics of the new run against the original). Both bags are read block by block.
+    ``twin_kwargs``: :func:`~..twin.run_twin`'s (``context``, ``handle_signals``, ...)."""
     from ..twin import run_twin
+    from ..twin.config import TwinConfig
     from .compare import compare_bags
     original = open_any_bag(bag, require_metadata=True)
     scenario = replay_scenario(original)
@@ -144,8 +146,9 @@ def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path |
     out = Path(out) if out is not None else default_bag_dir(f'{src.name}_replay', model)
     # keep_values off: the comparison reads the new bag (the run's table would grow with it)
     twin_kwargs.setdefault('keep_values', False)
-    result = run_twin(model, scenario, overrides, control_period=period, bag=out,
-                      base_params=bag_params(original), overwrite=overwrite, **twin_kwargs)
+    config = TwinConfig(valve_model=model, scenario=scenario, control_period=period, bag=out,
+                        overwrite=overwrite)
+    result = run_twin(config, overrides, base_params=bag_params(original), **twin_kwargs)
     # the recorded scenario's named windows, as a run of it reports them
     named = (prov.scenario or {}).get('windows') or {}
     metrics = compare_bags(bag, out, {k: tuple(v) for k, v in named.items()})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from .. import stopping
@@ -46,13 +47,12 @@ class Run(Command):
                             'not exist')
         bar = progress(total=int(round(scenario.duration * 1000)), desc='run', unit='ms') \
             if enabled() and not args.progress else None
-        kwargs = config.twin_kwargs(config.bag_dir())
-        result = run_twin(config.valve_model, scenario, overrides(args),
+        result = run_twin(dataclasses.replace(config, scenario=scenario), overrides(args),
                           on_tick=(lambda k, twin: bar.update(twin.period_ns * 1e-6) if k
                                    else None) if bar is not None else None,
                           keep_values=args.out is not None,
                           on_flush=(lambda t: print(f'flushed up to {t:.3f} s', flush=True))
-                          if args.progress else None, **kwargs)
+                          if args.progress else None)
         if bar is not None:
             bar.close()
         if args.out:

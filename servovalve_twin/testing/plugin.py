@@ -42,7 +42,7 @@ def twin_bag(tmp_path_factory):
         from rclpy.context import Context
         from rclpy.signals import SignalHandlerOptions
         from ..config import load_scenario
-        from ..twin import run_twin
+        from ..twin import TwinConfig, run_twin
         key = json.dumps([scenario if isinstance(scenario, str) else repr(scenario),
                           valve_model, list(faults), monitor, params or {}], sort_keys=True,
                          default=str)
@@ -55,8 +55,8 @@ def twin_bag(tmp_path_factory):
         ctx = Context()
         rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
         try:
-            run_twin(valve_model, raw, params, bag=path, context=ctx, handle_signals=False,
-                     keep_values=False, monitor=monitor)
+            run_twin(TwinConfig(valve_model, raw, bag=path, monitor=monitor), params, context=ctx,
+                     handle_signals=False, keep_values=False)
         finally:
             rclpy.try_shutdown(context=ctx)
         cache[key] = path

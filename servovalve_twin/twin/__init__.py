@@ -6,14 +6,14 @@ The names below are loaded on first use: the command line reads :mod:`.config` t
 options without importing rclpy.
 """
 
-__all__ = ['Twin', 'TwinResult', 'run_twin']
+__all__ = ['Twin', 'TwinConfig', 'TwinResult', 'run_twin']
 
 
 def __getattr__(name: str):
     if name in ('Twin', 'run_twin'):
         from . import lockstep
         return getattr(lockstep, name)
-    if name == 'TwinResult':
-        from .config import TwinResult
-        return TwinResult
+    if name in ('TwinConfig', 'TwinResult'):
+        from . import config
+        return getattr(config, name)
     raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

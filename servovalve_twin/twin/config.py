@@ -101,14 +101,18 @@ def option(default: Any, help: str, check: Callable[[str, Any], Any], *,
 
 @dataclasses.dataclass
 class TwinConfig:
-    """What a twin run is made of (the physical parameters aside: ``overrides``)."""
+    """What a twin run is made of (the physical parameters aside: ``overrides``): the
+    ``run`` command's options and the ``twin`` executable's ROS parameters, each checked, and
+    what :class:`~.lockstep.Twin` takes. From Python, ``scenario`` may also be a
+    :class:`~..physics.scenario.Scenario` or a mapping, ``bag`` a path, and ``algorithm``
+    hold classes, instances and (class, parameters) pairs."""
 
     valve_model: str = option('C2', 'valve model: a name of the registry '
                               '(servovalve-twin --help lists them)', _text, metavar='NAME')
-    scenario: str = option('paper', 'built-in scenario name or YAML file (default paper); its '
-                           "'faults:' section injects faults ([{at: 0.3, fault: "
-                           "leakage_growth, severity: 10}]; servovalve-twin faults lists "
-                           'them)', _text, metavar='paper|FILE.yaml')
+    scenario: str | Scenario | Mapping = option(
+        'paper', "built-in scenario name or YAML file (default paper); its 'faults:' section "
+        'injects faults ([{at: 0.3, fault: leakage_growth, severity: 10}]; servovalve-twin '
+        'faults lists them)', _text, metavar='paper|FILE.yaml')
     control_period: float = option(1e-3, 'lockstep period [s] (default 0.001; must divide '
                                    '1 ms)', _positive, metavar='S')
     clock_period: float = option(1e-2, '/clock publication period in simulated time [s] '
@@ -130,8 +134,8 @@ class TwinConfig:
     sensor_seed: int | None = option(
         None, "the noise realisation of the scenario's sensors (default their seed; the bag "
         'records the one used)', _seed, metavar='N', cli=dict(type=int))
-    bag: str = option('', 'bag directory (default bags/<scenario>_<model>_<UTC time>)', _text,
-                      metavar='DIR')
+    bag: str | Path = option('', 'bag directory (default bags/<scenario>_<model>_<UTC time>)',
+                             _text, metavar='DIR')
     record: bool = option(True, 'record a bag (default true)', _flag,
                           cli=dict(flag='--no-bag', action='store_false',
                                    help='do not record'))
@@ -142,7 +146,7 @@ class TwinConfig:
     estimator: str = option('', 'run the estimator node: diagnosis with this simplified model '
                             'over the last 0.5 s, every 0.25 s (estimator/<fault>_severity, '
                             'diagnostics)', _text, metavar='MODEL')
-    algorithm: tuple[str, ...] = option(
+    algorithm: tuple[Any, ...] = option(
         (), 'host this Algorithm in the lockstep (repeatable); its outputs are published and '
         'recorded', _texts, metavar='MOD:CLASS', cli=dict(action='append'))
     algorithm_param: tuple[str, ...] = option(
@@ -204,26 +208,18 @@ class TwinConfig:
         """``algorithm_param`` as {name: text} (typed by each algorithm from its defaults)."""
         return parse_assignments_text(self.algorithm_param, 'algorithm_param')
 
-    def algorithms(self) -> list[tuple[str, dict | None]]:
-        """The hosted algorithms as (class path, parameters): the user's, then the
-        estimator's."""
+    def algorithms(self) -> list[tuple[Any, dict | None]]:
+        """The hosted algorithms as (class path or class, parameters) or instances: the
+        user's (``algorithm``: class paths, which take ``algorithm_param``; from Python also
+        classes, instances, or (class, parameters) pairs), then the estimator's."""
         params = self.algorithm_params()
-        out: list[tuple[str, dict | None]] = [(a, params) for a in self.algorithm]
+        out: list[Any] = [a if isinstance(a, tuple) or not isinstance(a, (str, type))
+                          else (a, params) for a in self.algorithm]
         if self.estimator:
             out.append(('servovalve_twin.prognostics.estimator:Estimator',
                         {'model': self.estimator,
                          'model_form': self.estimator != self.valve_model}))
         return out
-
-    def twin_kwargs(self, bag: str | None) -> dict[str, Any]:
-        """The keywords of :class:`~.lockstep.Twin` (and ``run_twin``) for this configuration,
-        recording into ``bag`` (None: no bag)."""
-        return dict(control_period=self.control_period, clock_period=self.clock_period,
-                    real_time_factor=self.real_time_factor, namespace=self.namespace or None,
-                    clock=self.clock, followers=self.followers, bag=bag,
-                    overwrite=self.overwrite, monitor=self.monitor or None,
-                    algorithms=self.algorithms(), foxglove=self.foxglove,
-                    sensor_seed=self.sensor_seed)
 
     def bag_dir(self) -> str | None:
         """Where it records: ``bag``, or bags/<scenario>_<model>_<UTC time>; None without a
@@ -231,7 +227,7 @@ class TwinConfig:
         if not self.record:
             return None
         if self.bag:
-            return self.bag
+            return str(self.bag)
         from ..config import default_bag_dir, load_scenario
         return str(default_bag_dir(load_scenario(self.scenario).name, self.valve_model))
 

@@ -47,9 +47,8 @@ def main(args: Sequence[str] | None = None) -> int:
         started = lambda k, twin: k == 0 and print(   # noqa: E731
             f'twin: running {config.valve_model} on {twin.scenario.name}'
             + (f' in {twin.namespace}' if twin.namespace else ''), flush=True)
-        result = run_twin(config.valve_model, config.scenario, physical, on_tick=started,
-                          context=context, keep_values=False,
-                          **config.twin_kwargs(config.bag_dir()))
+        result = run_twin(config, physical, on_tick=started, context=context,
+                          keep_values=False)
     except TwinError as exc:
         print(f'twin: error: {exc}', file=sys.stderr)
         return 2

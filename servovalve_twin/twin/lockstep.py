@@ -62,12 +62,11 @@ from ..nodes.monitor import MONITOR_TOPICS, Monitor
 from ..nodes.plant import Plant, sensors_text
 from ..nodes.sources import CommandGenerator, LoadSupply
 from ..physics.params import EhaParams
-from ..physics.scenario import Scenario
 from ..physics.simulate import OUTPUT_PERIOD_NS, effective_params, steps_per
 from ..physics.valves import get_monitor_model, get_valve_model
 from ..prognostics.algorithm import Watchdog, exits_refused, in_step_beats, load_algorithm
 from .graph import EXECUTORS, GraphClock, OwnerLeft, absolute_namespace
-from .config import (TwinResult, check_clock_options, ros_param, ros_param_value,
+from .config import (TwinConfig, TwinResult, check_clock_options, ros_param, ros_param_value,
                      scenario_label)
 
 #: how often (simulated time) the executor gets a turn: node clocks and parameter requests
@@ -82,61 +81,63 @@ SCHEDULE_TICKS = 1 << 14
 class Twin:
     """The in-process graph. Create, :meth:`run`, :meth:`close` (or use as a context manager).
 
-    :param context: a private rclpy context (tests) or None for a new one
-    :param bag: bag directory to record into, or None
+    :param config: what the run is made of (:class:`~.config.TwinConfig`: the valve model, the
+        scenario -- a name, a file, or in Python a :class:`~..physics.scenario.Scenario` or a
+        mapping --, periods, clock mode, namespace, monitor, algorithms, recording, live view),
+        the same one the ``run`` command and the ``twin`` executable build from their options
+        and ROS parameters, so that a run from Python is the command's run. It records into
+        ``config.bag_dir()``: ``record=False`` for none
+    :param overrides: physical parameters over the design's (``{'M': 900.0}``)
+    :param base_params: the design they apply to (default: the documented one; a replayed
+        bag's)
     :param keep_values: keep the Float64 values to build the 1 ms signal table (``signals``)
-    :param clock_period: ``/clock`` is published every this much simulated time (a multiple of
-        the control period; default 10 ms). The lockstep does not need ``/clock`` -- every
-        message is tied to its tick -- so it is decimated: at 1 ms each ``/clock`` message
-        costs a delivery to every node's time source (bench/README.md)
+    :param on_flush: called with the simulated time each time the bag is flushed
+    :param context: a private rclpy context (tests) or None for a new one
+    :param args: ROS arguments of the context (``--ros-args -r __ns:=/left``; without them,
+        none: rcl would otherwise read the caller's own command line)
+    :param domain_id: the DDS domain of a new context
     :param executor: 'events' (rclpy's EventsExecutor) or 'single' (SingleThreadedExecutor)
-    :param foxglove: serve every message live to the Foxglove app on this localhost port (0:
-        any free one; :mod:`..nodes.live`)
-    :param namespace: the actuator's namespace ('left' or '/left'): its nodes, topics and the
-        bag's topic names move under it (``/left/xj``); ``/clock`` stays global. A
-        ``--ros-args -r __ns:=/left`` in ``args`` does the same
-    :param clock: 'own' -- the twin publishes ``/clock``, the graph's one clock owner; or
-        'follow' -- another owner (a twin, the ``clock`` executable) publishes it and this twin
-        runs each tick only once ``/clock`` has reached it, so several actuators share one
-        simulated time. A follower's results do not depend on the owner's pace (lockstep)
-    :param real_time_factor: pace simulated time to this many simulated seconds per wall
-        second (1.0: real time), checked at every ``clock_period``; None (default): as fast as
-        possible. A paced twin publishes every ``/clock`` on DDS, so that a ``use_sim_time``
-        node beside it sees each of its timer periods
-    :param followers: the clock owner starts its run once this many twins that follow its
-        ``/clock`` (other namespaces) are on the graph -- discovery takes 0.4-1.2 s here, and
-        a follower that joins late misses no tick but the simulated time it waited for
-    :param sensor_seed: the noise realisation of the scenario's sensors instead of the seed
-        it declares (the scenario then carries it: the plant node and the bag's provenance)
+
+    What each option does, by its :class:`~.config.TwinConfig` field: ``clock_period`` --
+    ``/clock`` is published every this much simulated time (the lockstep does not need it:
+    every message is tied to its tick, and at 1 ms each ``/clock`` message costs a delivery to
+    every node's time source, bench/README.md); ``namespace`` -- the actuator's nodes, topics
+    and the bag's topic names move under it (``/left/xj``), ``/clock`` stays global;
+    ``clock`` -- 'own' publishes ``/clock``, 'follow' runs each tick only once another
+    owner's ``/clock`` has reached it (a follower's results do not depend on the owner's
+    pace); ``real_time_factor`` -- paced to this many simulated seconds per wall second,
+    checked at every ``clock_period``, every ``/clock`` then on DDS so that a
+    ``use_sim_time`` node beside it sees each of its timer periods; ``followers`` -- the clock
+    owner starts once this many following twins are on the graph (discovery takes 0.4-1.2 s
+    here; a late follower misses no tick); ``sensor_seed`` -- the noise realisation of the
+    scenario's sensors; ``foxglove`` -- every message served live on this localhost port (0:
+    any free one; :mod:`..nodes.live`).
     """
 
-    def __init__(self, valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
-                 overrides: Mapping[str, Any] | None = None, *, control_period: float = 1e-3,
-                 bag: str | Path | None = None, keep_values: bool = True,
-                 context: Context | None = None, args: Sequence[str] | None = None,
-                 domain_id: int | None = None, overwrite: bool = False,
-                 clock_period: float = 1e-2, executor: str = 'events',
-                 base_params: EhaParams | None = None,
+    def __init__(self, config: TwinConfig, overrides: Mapping[str, Any] | None = None, *,
+                 base_params: EhaParams | None = None, keep_values: bool = True,
                  on_flush: Callable[[float], None] | None = None,
-                 monitor: str | None = None, algorithms: Sequence[Any] = (),
-                 foxglove: int | None = None, namespace: str | None = None,
-                 clock: str = 'own', real_time_factor: float | None = None,
-                 followers: int = 0, sensor_seed: int | None = None):
+                 context: Context | None = None, args: Sequence[str] | None = None,
+                 domain_id: int | None = None, executor: str = 'events'):
+        if not isinstance(config, TwinConfig):
+            raise TwinError(f'Twin takes a TwinConfig, got {type(config).__name__}')
+        self.config = config
+        valve_model, monitor = config.valve_model, config.monitor or None
         get_valve_model(valve_model)
-        check_clock_options(clock, real_time_factor, followers)
+        check_clock_options(config.clock, config.real_time_factor, config.followers)
         if executor not in EXECUTORS:
             raise TwinError(f'unknown executor {executor!r}; expected one of '
                             f'{sorted(EXECUTORS)}')
         if monitor is not None:
             get_monitor_model(monitor)
-        self.scenario = load_scenario(scenario)
-        if sensor_seed is not None:
+        self.scenario = load_scenario(config.scenario)
+        if config.sensor_seed is not None:
             # the plant node and the bag's provenance take the sensors from the scenario
-            self.scenario = self.scenario.with_sensor_seed(sensor_seed)
+            self.scenario = self.scenario.with_sensor_seed(config.sensor_seed)
         self.params = effective_params(self.scenario, overrides, base_params)
         self.valve_model = valve_model
-        self.control_period = control_period
-        self._check_periods(control_period, clock_period)
+        self.control_period = config.control_period
+        self._check_periods(config.control_period, config.clock_period)
         self._own_context = context is None
         self.context = context or Context()
         if not self.context.ok():
@@ -150,12 +151,14 @@ class Twin:
         self.stop_requested = False
         self._warned_foreign = False
         try:
-            types = self._make_nodes(scenario, monitor, algorithms, namespace)
-            self.sim = GraphClock(self.clock, follow=clock == 'follow',
-                                  real_time_factor=real_time_factor, followers=followers,
-                                  namespace=self.namespace,
+            types = self._make_nodes(config.scenario, monitor, config.algorithms(),
+                                     config.namespace or None)
+            self.sim = GraphClock(self.clock, follow=config.clock == 'follow',
+                                  real_time_factor=config.real_time_factor,
+                                  followers=config.followers, namespace=self.namespace,
                                   stopped=lambda: self.stop_requested)
-            self._make_recording(types, bag, overwrite, keep_values, on_flush, foxglove)
+            self._make_recording(types, config.bag_dir(), config.overwrite, keep_values,
+                                 on_flush, config.foxglove)
             self.executor = EXECUTORS[executor](context=self.context)
             for n in self.nodes:
                 self.executor.add_node(n)
@@ -444,13 +447,12 @@ class Twin:
         self.close()
 
 
-def run_twin(valve_model: str, scenario: str | Path | Scenario | Mapping = 'paper',
-             overrides: Mapping[str, Any] | None = None, *, control_period: float = 1e-3,
-             bag: str | Path | None = None, handle_signals: bool = True,
-             on_tick: Callable[[int, 'Twin'], None] | None = None, **kwargs) -> TwinResult:
-    """Build, run and close a twin; SIGINT/SIGTERM finish the bag and return early."""
-    twin = Twin(valve_model, scenario, overrides, control_period=control_period, bag=bag,
-                **kwargs)
+def run_twin(config: TwinConfig, overrides: Mapping[str, Any] | None = None, *,
+             handle_signals: bool = True, on_tick: Callable[[int, 'Twin'], None] | None = None,
+             **kwargs) -> TwinResult:
+    """Build, run and close a twin (:class:`Twin`'s parameters); SIGINT/SIGTERM finish the bag
+    and return early."""
+    twin = Twin(config, overrides, **kwargs)
     old = stopping.handle(twin.request_stop) if handle_signals else {}
     try:
         return twin.run(on_tick)

@@ -15,7 +15,7 @@ from servovalve_twin.bag import cdr
 from servovalve_twin.bag.reader import read_bag
 from servovalve_twin.cli import main
 from servovalve_twin.errors import BagError
-from servovalve_twin.twin import run_twin
+from servovalve_twin.twin import TwinConfig, run_twin
 from cases import short
 from conftest import ROOT
 
@@ -32,8 +32,8 @@ def hd_bag(tmp_path_factory):
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     try:
         path = tmp_path_factory.mktemp('bags') / 'short_HD'
-        result = run_twin('HD', SHORT, bag=path, context=ctx, handle_signals=False,
-                          clock_period=1e-3)
+        result = run_twin(TwinConfig('HD', SHORT, bag=path, clock_period=1e-3), context=ctx,
+                          handle_signals=False)
     finally:
         rclpy.try_shutdown(context=ctx)
     return path, result
@@ -291,9 +291,9 @@ def test_a_fresh_hd_run_records_the_reference_bags_messages(ros_context, tmp_pat
     same message index (a reader seeking by time sees the same)."""
     from servovalve_twin.bag.anybag import open_any_bag
     from servovalve_twin.config import reference_dir
-    from servovalve_twin.twin import run_twin
-    run_twin('HD', 'paper', bag=tmp_path / 'paper_HD', keep_values=False, context=ros_context,
-             handle_signals=False)
+    from servovalve_twin.twin import TwinConfig, run_twin
+    run_twin(TwinConfig('HD', 'paper', bag=tmp_path / 'paper_HD'), keep_values=False,
+             context=ros_context, handle_signals=False)
     ref = list(open_any_bag(reference_dir() / 'paper_HD').messages())
     new = list(open_any_bag(tmp_path / 'paper_HD').messages())
     assert len(new) == len(ref) == 12113

@@ -12,7 +12,7 @@ from servovalve_twin.bag.writer import BagWriter
 from servovalve_twin.cli import main
 from servovalve_twin.config import default_bag_dir, resolve_bag
 from servovalve_twin.errors import BagError, TwinError
-from servovalve_twin.twin import Twin, run_twin
+from servovalve_twin.twin import Twin, TwinConfig, run_twin
 from cases import BAD_COMMANDS, BAD_EXECUTABLES, EXAMPLE, listing, make_files, short
 from conftest import ROOT
 
@@ -30,7 +30,7 @@ def test_the_reference_bag_is_read_only_to_every_command(ros_context, tmp_path, 
     with pytest.raises(BagError, match='packaged reference'):
         BagWriter(REF, overwrite=True)
     with pytest.raises(BagError, match='packaged reference'):
-        run_twin('C2', SHORT, bag=REF / 'inner', overwrite=True, context=ros_context,
+        run_twin(TwinConfig('C2', SHORT, bag=REF / 'inner', overwrite=True), context=ros_context,
                  handle_signals=False)
     assert main(['reindex', '@paper_HD']) == 2
     assert main(['run', '--valve-model', 'HD', '--bag', str(REF), '--overwrite']) == 2
@@ -81,13 +81,13 @@ def test_default_bag_names_never_collide_and_stay_under_bags(tmp_path):
 def test_a_refused_start_leaves_nothing_behind(ros_context, tmp_path, monkeypatch):
     bag = tmp_path / 'refused'
     with pytest.raises(TwinError, match='simplified'):
-        Twin('C2', SHORT, context=ros_context, bag=bag, monitor='HD')
+        Twin(TwinConfig('C2', SHORT, bag=bag, monitor='HD'), context=ros_context)
     assert not bag.exists()
     bag.mkdir()
     (bag / 'keep.txt').write_text('x')
     with pytest.raises(TwinError):
-        Twin('C2', SHORT, context=ros_context, bag=bag, overwrite=True,
-             algorithms=['nope_module:X'])
+        Twin(TwinConfig('C2', SHORT, bag=bag, overwrite=True, algorithm=['nope_module:X']),
+             context=ros_context)
     assert sorted(p.name for p in bag.iterdir()) == ['keep.txt']
     # an output path that cannot be written is refused before the run, leaving no bag
     monkeypatch.chdir(tmp_path)
@@ -101,7 +101,7 @@ def test_byte_flips_are_detected_never_read_silently(ros_context, tmp_path):
     """Every chunk, the data section and the summary carry a CRC: a flipped byte anywhere
     either fails with one line or changes nothing that is read."""
     bag = tmp_path / 'b'
-    run_twin('C2', SHORT, bag=bag, context=ros_context, handle_signals=False)
+    run_twin(TwinConfig('C2', SHORT, bag=bag), context=ros_context, handle_signals=False)
     good = read_bag(bag)
     data = (bag / 'b_0.mcap').read_bytes()
     rng = random.Random(7)
@@ -128,7 +128,7 @@ def test_byte_flips_are_detected_never_read_silently(ros_context, tmp_path):
 
 def test_reindex_reports_what_it_skipped(ros_context, tmp_path, capsys):
     bag = tmp_path / 'cut'
-    run_twin('C2', dict(SHORT, duration=0.3), bag=bag, context=ros_context,
+    run_twin(TwinConfig('C2', dict(SHORT, duration=0.3), bag=bag), context=ros_context,
              handle_signals=False)
     f = bag / 'cut_0.mcap'
     data = f.read_bytes()
@@ -143,10 +143,10 @@ def test_reindex_reports_what_it_skipped(ros_context, tmp_path, capsys):
 
 def test_compare_warns_when_the_runs_differ_in_more_than_the_model(ros_context, tmp_path,
                                                                    capsys):
-    run_twin('C2', SHORT, bag=tmp_path / 'a', context=ros_context, handle_signals=False)
-    run_twin('C3', SHORT, {'M': 400.0}, bag=tmp_path / 'b', context=ros_context,
+    run_twin(TwinConfig('C2', SHORT, bag=tmp_path / 'a'), context=ros_context, handle_signals=False)
+    run_twin(TwinConfig('C3', SHORT, bag=tmp_path / 'b'), {'M': 400.0}, context=ros_context,
              handle_signals=False)
-    run_twin('C3', SHORT, bag=tmp_path / 'c', context=ros_context, handle_signals=False)
+    run_twin(TwinConfig('C3', SHORT, bag=tmp_path / 'c'), context=ros_context, handle_signals=False)
     assert main(['compare', str(tmp_path / 'a'), str(tmp_path / 'b')]) == 0
     err = capsys.readouterr().err
     assert 'warning: the runs were made with different parameters: M 500.0 vs 400.0' in err

@@ -59,9 +59,9 @@ def test_a_particle_filter_tracks_a_leak_growing_in_an_hd_twin(ros_context, tmp_
     events = [{'at': round(a, 3), 'fault': 'leakage_growth', 'severity': truth(a)}
               for a in np.arange(0.0, 1.0, 0.01)]
     from servovalve_twin.bag.reader import read_bag
-    from servovalve_twin.twin import run_twin
-    run_twin('HD', dict(PAPER, faults=events), bag=tmp_path / 'leak', context=ros_context,
-             handle_signals=False, keep_values=False)
+    from servovalve_twin.twin import TwinConfig, run_twin
+    run_twin(TwinConfig('HD', dict(PAPER, faults=events), bag=tmp_path / 'leak'),
+             context=ros_context, handle_signals=False, keep_values=False)
     r = read_bag(tmp_path / 'leak').signals
     assert len(r['t']) == 1001
     rng = np.random.default_rng(1)

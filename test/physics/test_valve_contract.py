@@ -132,9 +132,9 @@ def test_short_twin_run_and_its_bag(model, ros_context, tmp_path):
     table, P1/P2 are there exactly when the model has port pressures, the provenance names
     the model."""
     from servovalve_twin.bag.reader import read_bag
-    from servovalve_twin.twin import run_twin
-    result = run_twin(model.name, SHORT, context=ros_context, handle_signals=False,
-                      bag=tmp_path / model.name)
+    from servovalve_twin.twin import TwinConfig, run_twin
+    result = run_twin(TwinConfig(model.name, SHORT, bag=tmp_path / model.name),
+                      context=ros_context, handle_signals=False)
     ref = simulate(model.name, SHORT, ecu_period=1e-3)
     bag = read_bag(tmp_path / model.name)
     assert set(bag.signals) == set(ref.columns) == set(result.signals)

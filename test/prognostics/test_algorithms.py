@@ -23,7 +23,7 @@ from servovalve_twin.prognostics.algorithm import load_algorithm
 from servovalve_twin.prognostics.monitor import MonitorAlgorithm
 from servovalve_twin.prognostics.sweep import make_cases, run_case, run_cases
 from servovalve_twin.testing import replay_into
-from servovalve_twin.twin import Twin, run_twin
+from servovalve_twin.twin import Twin, TwinConfig, run_twin
 from conftest import ROOT
 from cases import PAPER
 
@@ -62,8 +62,8 @@ def live(tmp_path_factory):
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     bag = tmp_path_factory.mktemp('alg') / 'leaking'
     try:
-        with Twin('HD', LEAKING, context=ctx, bag=bag, monitor='SQ',
-                  algorithms=[DETECTOR, (Echo, {'gain': 2.0})]) as twin:
+        with Twin(TwinConfig('HD', LEAKING, bag=bag, monitor='SQ', algorithm=[DETECTOR, (Echo,
+                  {'gain': 2.0})]), context=ctx) as twin:
             twin.run()
             values = {t: twin.recorder.values(t) for t in twin.recorder.float_topics
                       if t.startswith(('algorithm', 'monitor'))}
@@ -140,8 +140,8 @@ def test_missing_input_and_a_raising_algorithm_name_it_and_the_bag_survives(ros_
     bag = tmp_path / 'r'
     with pytest.raises(TwinError, match=r'algorithm Raises raised at t = 0\.050 s: '
                                         r'ZeroDivisionError: boom'):
-        run_twin('C2', 'defaults', bag=bag, context=ros_context, handle_signals=False,
-                 algorithms=[Raises])
+        run_twin(TwinConfig('C2', 'defaults', bag=bag, algorithm=[Raises]), context=ros_context,
+                 handle_signals=False)
     run = read_bag(bag)                               # finalized: metadata.yaml, summary
     assert 0.04 <= run.signals['t'][-1] <= 0.05
     with pytest.raises(AlgorithmError, match=r'Raises raised at t = 0\.050 s'):

@@ -324,7 +324,7 @@ def flights(tmp_path_factory):
     a healthy one, recorded by the ROS twin."""
     import rclpy
     from rclpy.context import Context
-    from servovalve_twin.twin import run_twin
+    from servovalve_twin.twin import TwinConfig, run_twin
     d = tmp_path_factory.mktemp('flights')
     ctx = Context()
     rclpy.init(context=ctx)
@@ -332,9 +332,9 @@ def flights(tmp_path_factory):
     try:
         for i, sev in enumerate((2.0, 4.0, 6.0)):
             bags.append(d / f'flight{i}')
-            run_twin('SQ', _faulty('leakage_growth', sev), bag=bags[-1], context=ctx,
+            run_twin(TwinConfig('SQ', _faulty('leakage_growth', sev), bag=bags[-1]), context=ctx,
                      handle_signals=False, keep_values=False)
-        run_twin('SQ', PAPER, bag=d / 'healthy', context=ctx, handle_signals=False,
+        run_twin(TwinConfig('SQ', PAPER, bag=d / 'healthy'), context=ctx, handle_signals=False,
                  keep_values=False)
     finally:
         rclpy.try_shutdown(context=ctx)
@@ -441,10 +441,10 @@ def test_the_estimator_node_diagnoses_live_in_the_lockstep(ros_context, tmp_path
     estimate and then within 5 % of the truth, and its diagnostics name the fault (WARN)."""
     from servovalve_twin.bag.reader import read_bag
     from servovalve_twin.prognostics.estimator import Estimator
-    from servovalve_twin.twin import Twin
+    from servovalve_twin.twin import Twin, TwinConfig
     faults = 'torque_motor_gain_loss,leakage_growth'
-    with Twin('HD', _faulty('torque_motor_gain_loss', 0.7), context=ros_context,
-              bag=tmp_path / 'b', algorithms=[(Estimator, {'faults': faults})]) as twin:
+    with Twin(TwinConfig('HD', _faulty('torque_motor_gain_loss', 0.7), bag=tmp_path / 'b',
+              algorithm=[(Estimator, {'faults': faults})]), context=ros_context) as twin:
         assert [n.get_name() for n in twin.algorithms] == ['estimator']
         result = twin.run()
     assert 'first WARN at 0.500 s' in result.verdicts[0]
@@ -797,10 +797,10 @@ def test_a_bag_read_by_sensors_outside_the_calibration_says_so(ros_context, tmp_
     `diagnose` takes the sensors from the bag's provenance and names both departures from
     the domain its confidence was calibrated on, in the JSON's warnings; a P12 offset is
     applied, not warned about."""
-    from servovalve_twin.twin import run_twin
+    from servovalve_twin.twin import TwinConfig, run_twin
     scn = dict(PAPER, sensors={'seed': 2, 'xj': {'noise': 5.0e-5}, 'dxj': {'drift': 1.0e-3},
                                'p12': {'noise': 5.0e4, 'bias': 2.0e5}})
-    run_twin('HD', scn, bag=tmp_path / 'b', context=ros_context, handle_signals=False,
+    run_twin(TwinConfig('HD', scn, bag=tmp_path / 'b'), context=ros_context, handle_signals=False,
              keep_values=False)
     out = tmp_path / 'd.json'
     assert main(['diagnose', str(tmp_path / 'b'), '--faults', 'leakage_growth', '--json',

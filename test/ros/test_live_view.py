@@ -6,7 +6,7 @@ import re
 import threading
 
 from servovalve_twin.bag.reader import read_bag
-from servovalve_twin.twin import Twin
+from servovalve_twin.twin import Twin, TwinConfig
 from conftest import ROOT
 from foxclient import Client
 
@@ -14,7 +14,7 @@ SHORT = {'duration': 0.05, 'com': [[0.0, 0.02]]}
 
 
 def test_a_foxglove_client_receives_the_twins_topics(ros_context, tmp_path):
-    with Twin('C2', SHORT, context=ros_context, bag=tmp_path / 'b', foxglove=0) as twin:
+    with Twin(TwinConfig('C2', SHORT, bag=tmp_path / 'b', foxglove=0), context=ros_context) as twin:
         client = Client(twin.live.port, '/xj', 51)
         client.start()
         assert twin.live.subscribed.wait(120), client.error

@@ -89,13 +89,13 @@ def test_replay_carries_the_recorded_faults(tmp_path):
     from rclpy.context import Context
     from rclpy.signals import SignalHandlerOptions
     from servovalve_twin.config import load_scenario
-    from servovalve_twin.twin import run_twin
+    from servovalve_twin.twin import TwinConfig, run_twin
     raw = load_scenario('paper').to_dict()
     raw['faults'] = [{'at': 0.3, 'fault': 'supply_loss', 'severity': 0.2}]
     ctx = Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        run_twin('C2', raw, bag=tmp_path / 'f', context=ctx, handle_signals=False)
+        run_twin(TwinConfig('C2', raw, bag=tmp_path / 'f'), context=ctx, handle_signals=False)
         _, _, metrics = replay(tmp_path / 'f', out=tmp_path / 'g', context=ctx,
                                handle_signals=False)
     finally:

@@ -14,13 +14,13 @@ from rclpy.parameter import Parameter
 
 from servovalve_twin.runs import simulate
 from servovalve_twin.physics.valves import VALVE_MODEL_NAMES
-from servovalve_twin.twin import Twin, run_twin
+from servovalve_twin.twin import Twin, TwinConfig, run_twin
 from cases import HOSTILE_ALGORITHMS, SHORT
 
 
 
 def test_topics_and_types(ros_context):
-    with Twin('HD', SHORT, context=ros_context) as twin:
+    with Twin(TwinConfig('HD', SHORT, record=False), context=ros_context) as twin:
         twin.run()
         topics = dict(twin.plant.get_topic_names_and_types())
         nodes = set(twin.plant.get_node_names())
@@ -37,7 +37,7 @@ def test_topics_and_types(ros_context):
 
 
 def test_every_node_on_sim_time_and_parameters_declared(ros_context):
-    with Twin('C2', SHORT, context=ros_context) as twin:
+    with Twin(TwinConfig('C2', SHORT, record=False), context=ros_context) as twin:
         for node in (twin.command_generator, twin.load_supply, twin.ecu, twin.plant):
             assert node.get_parameter('use_sim_time').value is True
         d = twin.plant.describe_parameters(['valve_model', 'M', 'DT', 'C4_max_iter'])
@@ -55,7 +55,7 @@ def test_every_node_on_sim_time_and_parameters_declared(ros_context):
     ('M', math.nan, ''),
 ])
 def test_bad_parameters_refused_old_value_kept(ros_context, name, value, fragment):
-    with Twin('C2', SHORT, context=ros_context) as twin:
+    with Twin(TwinConfig('C2', SHORT, record=False), context=ros_context) as twin:
         before = twin.plant.get_parameter(name).value
         params_before = twin.plant.plant.params
         result = twin.plant.set_parameters([Parameter(name, value=value)])[0]
@@ -67,7 +67,7 @@ def test_bad_parameters_refused_old_value_kept(ros_context, name, value, fragmen
 
 
 def test_good_parameter_applies(ros_context):
-    with Twin('C2', SHORT, context=ros_context) as twin:
+    with Twin(TwinConfig('C2', SHORT, record=False), context=ros_context) as twin:
         assert twin.plant.set_parameters([Parameter('CLk', value=4e-13)])[0].successful
         assert twin.plant.plant.params.CLk == 4e-13
         assert twin.ecu.set_parameters([Parameter('GAP', value=2.0)])[0].successful
@@ -90,7 +90,7 @@ def test_scenario_parameter_validated(ros_context):
 def test_schedule_nodes_own_the_twins_scenario(ros_context):
     """In the twin the schedule nodes hold the scenario the twin runs (loaded once), their
     parameter names it, and it cannot be changed under the lockstep's precomputed schedule."""
-    with Twin('C2', 'sine_opposing', context=ros_context) as twin:
+    with Twin(TwinConfig('C2', 'sine_opposing', record=False), context=ros_context) as twin:
         for node in (twin.command_generator, twin.load_supply):
             assert node.scenario is twin.scenario
             assert node.get_parameter('scenario').value == 'sine_opposing'
@@ -101,7 +101,8 @@ def test_schedule_nodes_own_the_twins_scenario(ros_context):
 
 def test_twin_equals_simulate_with_the_same_sampled_ecu(ros_context):
     for model in ('C2', 'C4', 'HD'):
-        result = run_twin(model, 'paper', context=ros_context, handle_signals=False)
+        result = run_twin(TwinConfig(model, 'paper', record=False), context=ros_context,
+                          handle_signals=False)
         ref = simulate(model, 'paper', ecu_period=1e-3)
         worst = {c: float(np.max(np.abs(result.signals[c] - ref[c]))) for c in ref.columns}
         print(model, 'max |twin - simulate| per column:', worst)
@@ -114,7 +115,8 @@ def test_the_schedule_evaluated_in_stretches_is_the_same_run(ros_context, monkey
     paper's steps fall inside and at the seams) give simulate()'s run bit for bit."""
     from servovalve_twin.twin import lockstep
     monkeypatch.setattr(lockstep, 'SCHEDULE_TICKS', 7)
-    result = run_twin('C2', 'paper', context=ros_context, handle_signals=False)
+    result = run_twin(TwinConfig('C2', 'paper', record=False), context=ros_context,
+                      handle_signals=False)
     ref = simulate('C2', 'paper', ecu_period=1e-3)
     for c in ref.columns:
         np.testing.assert_array_equal(result.signals[c], ref[c], err_msg=c)
@@ -133,7 +135,8 @@ def test_twin_with_sensors_equals_simulate_and_records_them(ros_context, tmp_pat
     provenance holds the sensors and their seed; the joint state carries the readings."""
     from servovalve_twin.bag.reader import read_bag
     scn = dict(SHORT, sensors=SENSORS)
-    result = run_twin('HD', scn, context=ros_context, handle_signals=False, bag=tmp_path / 'b')
+    result = run_twin(TwinConfig('HD', scn, bag=tmp_path / 'b'), context=ros_context,
+                      handle_signals=False)
     ref = simulate('HD', scn, ecu_period=1e-3)
     for c in ref.columns:
         assert np.array_equal(result.signals[c], ref[c]), c
@@ -148,8 +151,8 @@ def test_twin_with_sensors_equals_simulate_and_records_them(ros_context, tmp_pat
     assert [m.position[0] for m in joint] == ref['xj'].tolist()
     assert [m.effort[0] for m in joint] == (ref.params.AJ * ref['p12']).tolist()
     # another realisation: the twin's sensor_seed is simulate's, and the bag records it
-    other = run_twin('HD', scn, context=ros_context, handle_signals=False, sensor_seed=8,
-                     bag=tmp_path / 'c')
+    other = run_twin(TwinConfig('HD', scn, sensor_seed=8, bag=tmp_path / 'c'), context=ros_context,
+                     handle_signals=False)
     assert np.array_equal(other.signals['xj'], simulate('HD', scn, ecu_period=1e-3,
                                                         sensor_seed=8)['xj'])
     assert not np.array_equal(other.signals['xj'], result.signals['xj'])
@@ -158,8 +161,8 @@ def test_twin_with_sensors_equals_simulate_and_records_them(ros_context, tmp_pat
 
 def test_two_runs_identical(ros_context, tmp_path):
     from servovalve_twin.bag.reader import read_bag
-    runs = [run_twin('HD', SHORT, context=ros_context, handle_signals=False,
-                     bag=tmp_path / f'run{i}') for i in range(2)]
+    runs = [run_twin(TwinConfig('HD', SHORT, bag=tmp_path / f'run{i}'), context=ros_context,
+                     handle_signals=False) for i in range(2)]
     a, b = (read_bag(r.bag) for r in runs)
     assert a.topics == b.topics
     for topic in a.series:
@@ -183,12 +186,13 @@ def test_valve_model_switch_mid_run_keeps_mechanical_state(ros_context):
             r = twin.plant.set_parameters([Parameter('valve_model', value='HD')])[0]
             assert r.successful
             seen['after'] = twin.plant.plant.s.copy()
-    with Twin('C2', SHORT, context=ros_context) as twin:
+    with Twin(TwinConfig('C2', SHORT, record=False), context=ros_context) as twin:
         result = twin.run(on_tick=switch)
         p1_ticks = twin.recorder.values('p1')[0]
     np.testing.assert_array_equal(seen['before'], seen['after'])
     assert p1_ticks and min(p1_ticks) == 101 * 1_000_000          # P1/P2 appear with HD
-    pure = run_twin('C2', SHORT, context=ros_context, handle_signals=False)
+    pure = run_twin(TwinConfig('C2', SHORT, record=False), context=ros_context,
+                    handle_signals=False)
     d = np.abs(result.signals['xj'] - pure.signals['xj'])
     print(f'XJ after the C2 -> HD switch at 0.1 s differs from pure C2 by up to {d.max():.2e} m')
     assert np.all(d[:101] == 0.0) and d.max() > 1e-6
@@ -213,7 +217,8 @@ def test_valve_model_switch_through_the_parameter_service(ros_context):
     # a second of flight: the executor's turns every 100 ms serve the requests (ten chances,
     # so a request delayed on a busy machine is still served during the run)
     try:
-        with Twin('C2', dict(SHORT, duration=1.0), context=ros_context) as twin:
+        with Twin(TwinConfig('C2', dict(SHORT, duration=1.0), record=False),
+                  context=ros_context) as twin:
             twin.run(on_tick=on_tick)
             assert twin.plant.plant.model.name == 'C3'
             assert twin.plant.get_parameter('valve_model').value == 'C3'
@@ -231,7 +236,7 @@ def test_valve_model_switch_through_the_parameter_service(ros_context):
 
 def test_nan_input_is_dropped_not_integrated(ros_context):
     from std_msgs.msg import Float64
-    with Twin('C2', SHORT, context=ros_context) as twin:
+    with Twin(TwinConfig('C2', SHORT, record=False), context=ros_context) as twin:
         msg = Float64()
         msg.data = math.nan
         twin.plant._on_input('psr', msg.data)
@@ -241,11 +246,11 @@ def test_nan_input_is_dropped_not_integrated(ros_context):
 def test_bad_twin_configuration_is_an_error(ros_context):
     from servovalve_twin.errors import TwinError
     with pytest.raises(TwinError, match="unknown valve model 'X'"):
-        Twin('X', SHORT, context=ros_context)
+        Twin(TwinConfig('X', SHORT, record=False), context=ros_context)
     with pytest.raises(TwinError, match='the monitor runs a simplified model'):
-        Twin('C2', SHORT, context=ros_context, monitor='HD')
+        Twin(TwinConfig('C2', SHORT, monitor='HD', record=False), context=ros_context)
     with pytest.raises(TwinError, match='must divide the 1 ms'):
-        Twin('C2', SHORT, context=ros_context, control_period=3e-3)
+        Twin(TwinConfig('C2', SHORT, control_period=3e-3, record=False), context=ros_context)
 
 
 def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_path):
@@ -256,7 +261,7 @@ def test_monitor_node_in_the_twin_equals_the_ros_free_monitor(ros_context, tmp_p
     from servovalve_twin.config import load_scenario
     raw = load_scenario('paper').to_dict()
     raw['faults'] = [{'at': 0.2, 'fault': 'leakage_growth', 'severity': 10.0}]
-    with Twin('HD', raw, context=ros_context, monitor='SQ', bag=tmp_path / 'm') as twin:
+    with Twin(TwinConfig('HD', raw, monitor='SQ', bag=tmp_path / 'm'), context=ros_context) as twin:
         result = twin.run()
         t_res, res = twin.recorder.values('monitor/residual_xj')
         t_h, health = twin.recorder.values('monitor/health_p12')
@@ -313,7 +318,7 @@ def test_the_graph_still_sees_the_topics_the_nodes_hand_over_in_process(ros_cont
                                                for _ in iter(stop.is_set, True)])
     spinner.start()
     try:
-        with Twin('C2', SHORT, context=ros_context, bag=tmp_path / 'b') as twin:
+        with Twin(TwinConfig('C2', SHORT, bag=tmp_path / 'b'), context=ros_context) as twin:
             # discovery is matched both ways once a probe gets through (readiness, not a delay)
             deadline = time.monotonic() + 10.0
             while not (got['joint'] and got['clock']):
@@ -362,7 +367,7 @@ def test_a_fault_simulate_accepts_is_accepted_by_the_twin(ros_context):
     run at the onset; applied as one state, the twin equals simulate bit for bit."""
     raw = {'duration': 0.3, 'com': [[0.0, 0.02]], 'fr': [[0.0, 0.0], [0.05, 3000.0]],
            'faults': [{'at': 0.1, 'fault': 'dynamic_friction', 'severity': 15.0}]}
-    with Twin('C2', raw, context=ros_context) as twin:
+    with Twin(TwinConfig('C2', raw, record=False), context=ros_context) as twin:
         result = twin.run()
         assert twin.plant.plant.params.FDJ == twin.plant.plant.params.FSJ == 3000.0
     ref = simulate('C2', raw, ecu_period=1e-3)
@@ -612,7 +617,8 @@ def test_no_live_parameter_value_stops_the_twin(ros_context, tmp_path):
                     else:
                         refused += 1
                         assert r.reason, (node.get_name(), name, value)
-    with Twin('C2', SHORT, context=ros_context, monitor='SQ', bag=tmp_path / 'b') as twin:
+    with Twin(TwinConfig('C2', SHORT, monitor='SQ', bag=tmp_path / 'b'),
+              context=ros_context) as twin:
         assert twin.monitor in twin.nodes
         twin.run(on_tick=hostile)
         rows = twin.monitor.get_parameter('diagnostics_period').value
@@ -692,6 +698,6 @@ def test_an_owner_whose_followers_never_come_gives_up_in_one_line(ros_context, m
     monkeypatch.setattr(graph, 'FOLLOWERS_WAIT_S', 1.0)
     with pytest.raises(TwinError, match=r'--followers 1: 0 twin\(s\) following /clock came '
                                         r'within 1 s \(none\); start each with --clock follow'):
-        run_twin('C2', SHORT, context=ros_context, handle_signals=False, followers=1,
-                 namespace='/solo', bag=tmp_path / 'b')
+        run_twin(TwinConfig('C2', SHORT, followers=1, namespace='/solo', bag=tmp_path / 'b'),
+                 context=ros_context, handle_signals=False)
     assert (tmp_path / 'b' / 'metadata.yaml').is_file()
