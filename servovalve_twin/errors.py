@@ -24,3 +24,10 @@ class ScenarioError(TwinError, ValueError):
 
 class BagError(TwinError):
     """A bag directory or MCAP file is missing, truncated, corrupt or not of the twin's layout."""
+
+
+def one_line(exc: BaseException | str, limit: int = 600) -> str:
+    """An error's message as the one line a user is shown, of bounded length (a message may
+    hold a parameter file's text or a list of every allowed name)."""
+    text = ' '.join(str(exc).split())
+    return text[:limit] + ' ...' if len(text) > limit else text

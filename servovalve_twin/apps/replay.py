@@ -12,7 +12,6 @@ and (unless overridden) the valve model come from the bag's provenance record.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -158,21 +157,21 @@ def replay(bag: str | Path, *, valve_model: str | None = None, out: str | Path |
 def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin replay --ros-args -p bag:=bags/paper_HD [-p valve_model:=C2]
     [-p out:=DIR]``."""
-    import rclpy
-    from ..nodes.rosargs import init_context, ros_parameters
+    from ..nodes.process import ros_main
+    from ..nodes.rosargs import ros_parameters
     from .compare import format_table
-    context, _ = init_context(args)
-    try:
+
+    def body(context, stopped) -> int:
         values = ros_parameters(context, 'replay', ('bag', 'valve_model', 'out'))
         if not values.get('bag'):
             raise TwinError('give the bag to replay: --ros-args -p bag:=DIR')
-        _, result, metrics = replay(values['bag'], valve_model=values.get('valve_model') or None,
-                                    out=values.get('out') or None, context=context)
-    except TwinError as exc:
-        print(f'replay: error: {exc}', file=sys.stderr)
-        return 2
-    finally:
-        rclpy.try_shutdown(context=context)
-    print(f'replayed into {result.bag}')
-    print(format_table(metrics))
-    return 130 if result.interrupted else 0
+        # (a stop asked before the twin took the signals over: its first tick sees it)
+        _, result, metrics = replay(
+            values['bag'], valve_model=values.get('valve_model') or None,
+            out=values.get('out') or None, context=context,
+            on_tick=lambda k, twin: twin.request_stop() if k == 0 and stopped() else None)
+        print(f'replayed into {result.bag}')
+        print(format_table(metrics))
+        return 130 if result.interrupted else 0
+    return ros_main('replay', body, args, 'usage: replay --ros-args -p bag:=DIR '
+                    '[-p valve_model:=NAME] [-p out:=DIR]')

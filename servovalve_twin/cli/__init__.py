@@ -13,7 +13,7 @@ import os
 import sys
 from typing import Sequence
 
-from ..errors import TwinError
+from ..errors import TwinError, one_line
 from . import bags, phm, physics, ros, sweep
 from .common import Command, Parser
 
@@ -89,10 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   'no checksums: what was read from it cannot be verified', file=sys.stderr)
         return code
     except TwinError as exc:
-        text = ' '.join(str(exc).split())            # one line, whatever the message holds
-        if len(text) > 600:
-            text = text[:600] + ' ...'
-        print(f'servovalve-twin {args.command}: error: {text}', file=sys.stderr)
+        print(f'servovalve-twin {args.command}: error: {one_line(exc)}', file=sys.stderr)
         return 2
     except BrokenPipeError:
         # the reader went away (`... --out - | head`): quiet, as command-line tools are

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from .. import stopping
 from ..errors import TwinError
 from .common import (Command, add_foxglove_option, add_param_options, discovery_off,
                      overrides, positive_float)
@@ -127,11 +126,8 @@ class Play(Command):
         add_foxglove_option(p)
 
     def main(self, args):
-        import signal
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.signals import SignalHandlerOptions
         from ..nodes.player import PlayOptions, play
+        from ..nodes.process import ros_main
         opts = PlayOptions(rate=args.rate, clock=args.clock, topics=tuple(args.topics),
                            exclude_topics=tuple(args.exclude_topics), loop=args.loop,
                            delay=args.delay, start_offset=args.start_offset,
@@ -139,20 +135,12 @@ class Play(Command):
                            start_paused=args.start_paused, remap=tuple(args.remap),
                            wait_for_subscribers=args.wait_for_subscribers)
         opts.check()
-        stop = []
-        old = stopping.handle(lambda *_: stop.append(True))
-        context = Context()
-        # no arguments for rcl: by default it reads sys.argv, and took this command's own
-        # values (--remap FROM:=TO, a --topics value) for remap rules of its own
-        rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
-        try:
-            result = play(args.bag, opts, context=context, stop=lambda: bool(stop),
+
+        def body(context, stopped) -> int:
+            result = play(args.bag, opts, context=context, stop=stopped,
                           foxglove=args.foxglove)
-        finally:
-            rclpy.try_shutdown(context=context)
-            for sig, handler in old.items():
-                signal.signal(sig, handler)
-        state = 'stopped' if stop else 'done'
-        print(f'play: {state}: {result["published"]} messages in {result["wall_s"]:.2f} s '
-              f'(bag {result["bag_duration_s"]:.3f} s at rate {args.rate:g})')
-        return 0
+            state = 'stopped' if stopped() else 'done'
+            print(f'play: {state}: {result["published"]} messages in {result["wall_s"]:.2f} s '
+                  f'(bag {result["bag_duration_s"]:.3f} s at rate {args.rate:g})')
+            return 0
+        return ros_main('servovalve-twin play', body)

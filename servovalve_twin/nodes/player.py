@@ -56,9 +56,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
-from .. import stopping
 from ..bag.anybag import AnyBag, open_any_bag
-from ..errors import BagError, TwinError
+from ..errors import TwinError
 from .clock import clock_msg
 from .play_options import OPTION_DOCS, PlayOptions, absolute_topic, typed_option
 
@@ -425,37 +424,24 @@ def play(bag_path, options: PlayOptions, *, context=None, progress: bool | None 
 def main(args: Sequence[str] | None = None) -> int:
     """``ros2 run servovalve_twin player --ros-args -p bag:=DIR [-p rate:=2.0] [-p clock:=40.0]
     [-p topics:="['/xj']"] [-p loop:=true] ...``."""
-    import rclpy
-    from .rosargs import asks_for_help, init_context, ros_parameters, stray_arguments
-    argv = list(sys.argv if args is None else args)
+    from .process import ros_main
+    from .rosargs import ros_parameters
     usage = ('usage: player --ros-args -p bag:=DIR [-p rate:=F] [-p clock:=HZ] '
              '[-p topics:=[...]] [-p exclude_topics:=[...]] [-p loop:=true] [-p delay:=S] '
              '[-p start_offset:=S] [-p playback_duration:=S] [-p start_paused:=true] '
              '[-p remap:=[FROM:=TO]] [-p wait_for_subscribers:=N]\n'
              'example: ros2 run servovalve_twin player --ros-args -p bag:=bags/hd -p rate:=4.0')
-    if asks_for_help(argv):
-        print(usage)
-        return 0
-    if stray_arguments(argv):
-        print(usage, file=sys.stderr)
-        return 2
-    stop = []
-    stopping.handle(lambda *_: stop.append(True))
-    context, argv = init_context(argv)
-    fields = [f.name for f in dataclasses.fields(PlayOptions)]
-    try:
+
+    def body(context, stopped) -> int:
+        fields = [f.name for f in dataclasses.fields(PlayOptions)]
         values = ros_parameters(context, 'player', ['bag'] + fields)
         if not values.get('bag'):
             raise TwinError('give the bag to play: --ros-args -p bag:=DIR')
         opts = {f.name: typed_option(f.name, values[f.name], f.default)
                 for f in dataclasses.fields(PlayOptions) if f.name in values}
-        result = play(values['bag'], PlayOptions(**opts), context=context,
-                      stop=lambda: bool(stop), on_ready=lambda player: print(
-                          f'player: playing {values["bag"]}', flush=True))
-    except (TwinError, BagError) as exc:
-        print(f'player: error: {exc}', file=sys.stderr)
-        return 2
-    finally:
-        rclpy.try_shutdown(context=context)
-    print(f'player: {result["published"]} messages in {result["wall_s"]:.2f} s')
-    return 0
+        result = play(values['bag'], PlayOptions(**opts), context=context, stop=stopped,
+                      on_ready=lambda player: print(f'player: playing {values["bag"]}',
+                                                    flush=True))
+        print(f'player: {result["published"]} messages in {result["wall_s"]:.2f} s')
+        return 0
+    return ros_main('player', body, args, usage)

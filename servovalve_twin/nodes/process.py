@@ -1,21 +1,30 @@
-"""A node run alone, as ``ros2 run`` runs it: the one set-up of the standalone executables
-(:func:`spin_standalone`) -- signals, context, the start-up line, one error-line format, the
-shutdown in order."""
+"""The two shapes of a ROS process, each written once: a node run alone, as ``ros2 run`` runs
+it (:func:`spin_standalone`: the node executables), and an executable that runs a body of its
+own on a private context (:func:`ros_main`: ``twin``, ``player``, ``replay`` and
+``servovalve-twin play``) -- usage, signals, context, one error-line format, the shutdown in
+order."""
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
 
 import rclpy
+from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from .. import stopping
-from ..errors import ParameterError, TwinError
+from ..errors import TwinError, one_line
+from .rosargs import asks_for_help, init_context, stray_arguments
+
+#: what a user's input can do wrong at start-up: one error line, exit 2 ((the last) a
+#: parameter's type or range refused at declare time)
+_REFUSED = (TwinError, rclpy.exceptions.ParameterException)
 
 def _refuse_unknown_parameters(node: Node) -> None:
     """A ``-p NAME:=VALUE`` the node does not declare is a misspelling, unless it is a physical
@@ -69,8 +78,8 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
         # parsed first on their own: rcl_init would log its own error line before refusing
         remove_ros_args(argv)
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    except rclpy._rclpy_pybind11.RCLError as exc:       # e.g. a params file that is missing
-        print(f'error: {" ".join(str(exc).split(", at ")[0].split())}', file=sys.stderr)
+    except RuntimeError as exc:                  # e.g. a params file that is missing
+        print(f'error: {_rcl_refusal(exc)}', file=sys.stderr)
         return 2
     node = executor = None
     if stop:            # asked to stop while rclpy started: do not build (and compile) a node
@@ -88,10 +97,8 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
             executor.spin_once(timeout_sec=0.1)
     except ExternalShutdownException:
         pass
-    except (TwinError, ParameterError, rclpy.exceptions.ParameterException) as exc:
-        # (the last: type or range refused at declare time) -- one line, of bounded length
-        text = ' '.join(str(exc).split())
-        print(f'error: {text[:600]}' + (' ...' if len(text) > 600 else ''), file=sys.stderr)
+    except _REFUSED as exc:
+        print(f'error: {one_line(exc)}', file=sys.stderr)
         return 2
     finally:
         if executor is not None:
@@ -102,4 +109,58 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
     return 0
 
 
-__all__ = ['spin_standalone', 'describe']
+def ros_main(name: str, body: Callable[[Context, Callable[[], bool]], int],
+             args: Sequence[str] | None = None, usage: str | None = None) -> int:
+    """An executable that runs ``body(context, stopped)`` on a private rclpy context, built
+    from ``args`` (default ``sys.argv``): ``-h`` prints ``usage`` (exit 0) and any argument
+    outside ``--ros-args`` is refused with it (exit 2); SIGINT and SIGTERM make ``stopped()``
+    true (a body that installs handlers of its own -- a twin's -- asks it until then) and
+    are handed back when it returns; a user's error (a :class:`TwinError`, a refused
+    parameter, rcl's refusal of the command line) is one line ``NAME: error: ...``, exit 2;
+    the context is shut down whatever happens. ``usage`` None: a command of the command line
+    (its own parser read the arguments; rcl gets none -- by default it read sys.argv and took
+    the command's own ``--remap FROM:=TO`` for a remap rule)."""
+    argv = list(sys.argv if args is None else args)
+    try:
+        if usage is not None:
+            if asks_for_help(argv):
+                print(usage)
+                return 0
+            if stray_arguments(argv):
+                print(usage, file=sys.stderr)
+                return 2
+        return _run_body(name, body, argv if usage is not None else [name])
+    except _REFUSED as exc:
+        print(f'{name}: error: {one_line(exc)}', file=sys.stderr)
+        return 2
+    except RuntimeError as exc:
+        print(f'{name}: error: {_rcl_refusal(exc)}', file=sys.stderr)
+        return 2
+
+
+def _rcl_refusal(exc: RuntimeError) -> str:
+    """rcl's refusal of the command line (a params file that is missing, a -p value YAML
+    cannot parse) as one line; any other RuntimeError is re-raised. Its classes are those of
+    the C extension as rclpy loads it (not the module object ``rclpy._rclpy_pybind11``: an
+    ``except`` naming that missed them), so known by their module's name."""
+    if type(exc).__module__ != 'rclpy._rclpy_pybind11':
+        raise exc
+    return one_line(str(exc).split(', at ')[0])
+
+
+def _run_body(name: str, body: Callable[[Context, Callable[[], bool]], int],
+              argv: list[str]) -> int:
+    stop: list[bool] = []
+    old = stopping.handle(lambda *_: stop.append(True))
+    context = None
+    try:
+        context, _ = init_context(argv)
+        return int(body(context, lambda: bool(stop)) or 0)
+    finally:
+        if context is not None:
+            rclpy.try_shutdown(context=context)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+__all__ = ['spin_standalone', 'ros_main', 'describe']

@@ -7,10 +7,8 @@ from __future__ import annotations
 import sys
 from typing import Sequence
 
-import rclpy
-
-from ..errors import TwinError
-from ..nodes.rosargs import asks_for_help, init_context, ros_parameters, stray_arguments
+from ..nodes.process import ros_main
+from ..nodes.rosargs import ros_parameters
 from ..physics.params import PARAM_NAMES
 from .config import TwinConfig
 from .lockstep import run_twin
@@ -29,41 +27,34 @@ def main(args: Sequence[str] | None = None) -> int:
     [-p real_time_factor:=1.0] [-r __ns:=/left]``; other ``-p NAME:=VALUE`` set physical
     parameters. Recording is on by default, into ``bags/<scenario>_<valve_model>_<UTC
     time>``."""
-    argv = list(sys.argv if args is None else args)
-    if asks_for_help(argv):
-        print(USAGE)
-        return 0
-    if stray_arguments(argv):
-        print(USAGE, file=sys.stderr)
-        return 2
-    context, argv = init_context(argv)
-    try:
+    def body(context, stopped) -> int:
         values = ros_parameters(context, 'twin', TwinConfig.names(),
                                 allow=lambda n: n in PARAM_NAMES)
         config = TwinConfig.from_values({k: v for k, v in values.items()
                                          if k not in PARAM_NAMES})
         physical = {k: v for k, v in values.items() if k in PARAM_NAMES}
-        # one line once the first tick has run: a supervisor (and bench_sigint) knows it is up
-        started = lambda k, twin: k == 0 and print(   # noqa: E731
-            f'twin: running {config.valve_model} on {twin.scenario.name}'
-            + (f' in {twin.namespace}' if twin.namespace else ''), flush=True)
-        result = run_twin(config, physical, on_tick=started, context=context,
+
+        def on_tick(k: int, twin) -> None:
+            if k == 0:
+                # one line once the first tick has run: a supervisor (and bench_sigint)
+                # knows it is up
+                print(f'twin: running {config.valve_model} on {twin.scenario.name}'
+                      + (f' in {twin.namespace}' if twin.namespace else ''), flush=True)
+                if stopped():                 # asked before the twin took the signals over
+                    twin.request_stop()
+        result = run_twin(config, physical, on_tick=on_tick, context=context,
                           keep_values=False)
-    except TwinError as exc:
-        print(f'twin: error: {exc}', file=sys.stderr)
-        return 2
-    finally:
-        rclpy.try_shutdown(context=context)
-    state = 'interrupted' if result.interrupted else 'done'
-    print(f'twin: {state}: {result.simulated_s:.3f} s simulated with {config.valve_model} in '
-          f'{result.wall_s:.2f} s (real-time factor '
-          f'{result.simulated_s / max(result.wall_s, 1e-9):.1f})'
-          + (f'; bag {result.bag}' if result.bag else ''))
-    for line in result.verdicts:
-        print(f'twin: {line}')
-    # a stop by SIGINT/SIGTERM is a clean end for a ROS executable (its bag is complete up to
-    # there): 0, so that launch does not report the process as died
-    return 0
+        state = 'interrupted' if result.interrupted else 'done'
+        print(f'twin: {state}: {result.simulated_s:.3f} s simulated with {config.valve_model} '
+              f'in {result.wall_s:.2f} s (real-time factor '
+              f'{result.simulated_s / max(result.wall_s, 1e-9):.1f})'
+              + (f'; bag {result.bag}' if result.bag else ''))
+        for line in result.verdicts:
+            print(f'twin: {line}')
+        # a stop by SIGINT/SIGTERM is a clean end for a ROS executable (its bag is complete
+        # up to there): 0, so that launch does not report the process as died
+        return 0
+    return ros_main('twin', body, args, USAGE)
 
 
 if __name__ == '__main__':
