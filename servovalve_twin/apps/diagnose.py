@@ -15,8 +15,9 @@ from ..outputs import output_path
 from ..prognostics.calibration import alpha_of, calibration_for
 from ..prognostics.conformal import ALPHA
 from ..prognostics.diagnosis import (DIAGNOSABLE, HEALTHY, SIGNALS, UNEXPLAINED, Diagnosis,
-                                     diagnose, model_form_estimate)
+                                     diagnose)
 from ..prognostics.flight_calibration import OWN, cached, flight_key, with_pooled
+from ..prognostics.modelform import model_form_estimate
 from ..prognostics.prognosis import MIN_CYCLES, Prognosis, prognose
 from .plots import plot_overlay
 from .replay import bag_params

@@ -97,41 +97,73 @@ def _tagged(stream, i: int):
 UNVERIFIED: list[str] = []
 
 
+def _checked_against(p: Path, meta: dict, topics: dict[str, TopicInfo], count: int) -> dict:
+    """The storage files' counts held against ``metadata.yaml``'s (a disagreement is
+    corruption: sqlite3 keeps no checksum, and a count is what can be checked), its offered
+    QoS taken over; returns its ``custom_data``."""
+    entries = meta.get('topics_with_message_count') or []
+    for entry in entries if isinstance(entries, list) else []:
+        tm = entry.get('topic_metadata') if isinstance(entry, dict) else None
+        if not isinstance(tm, dict):
+            continue
+        name = tm.get('name')
+        n_meta = entry.get('message_count')
+        if isinstance(name, str) and isinstance(n_meta, int) and not isinstance(n_meta, bool) \
+                and n_meta != (topics[name].count if name in topics else 0):
+            # sqlite3 keeps no checksum: a count that disagrees is what can be checked
+            raise BagError(f'bag {str(p)!r} is corrupt: metadata.yaml counts {n_meta} '
+                           f'messages on {name}, its storage files hold '
+                           f'{topics[name].count if name in topics else 0}')
+        if isinstance(name, str) and name in topics and tm.get('offered_qos_profiles') \
+                is not None:
+            qos = normalise_qos(tm['offered_qos_profiles'])
+            if qos:
+                topics[name].qos = qos
+    expected = meta.get('message_count')
+    if isinstance(expected, int) and expected > 0 and count == 0:
+        raise BagError(f'bag {str(p)!r}: metadata.yaml counts {expected} messages but its '
+                       'storage files hold none (truncated or corrupt)')
+    return meta.get('custom_data') if isinstance(meta.get('custom_data'), dict) else {}
+
+
+def _storage_files(p: Path, require_metadata: bool
+                   ) -> tuple[dict | None, str, list[Path]]:
+    """A bag's ``metadata.yaml`` (None: none), its storage's name and its files."""
+    if p.is_file():
+        return None, storage_of(p).name, [p]
+    if not p.is_dir():
+        raise BagError(f'no bag at {str(p)!r}: not a directory or a storage file ('
+                       + ', '.join(s.suffix for s in STORAGES.values()) + ')')
+    meta = _read_metadata(p)
+    if meta is not None:
+        return (meta, *_listed_files(p, meta))
+    if require_metadata:
+        raise BagError(f'bag {str(p)!r} has no metadata.yaml (an interrupted run?); '
+                       f'rebuild it with: servovalve-twin reindex {p}')
+    files = []
+    for s in STORAGES.values():
+        files = sorted(p.glob('*' + s.suffix))
+        if files:
+            break
+    special = [f for f in files if not f.is_file()]
+    if special:
+        # a FIFO (or a device) named like a storage file blocked every reader on its first
+        # read
+        raise BagError(f'bag {str(p)!r}: {special[0].name} is not a regular file; a '
+                       'storage file must be one')
+    if not files:
+        raise BagError(f'no bag at {str(p)!r}: no metadata.yaml or storage file ('
+                       + ', '.join(s.suffix for s in STORAGES.values()) + ')')
+    return None, storage_of(files[0]).name, files
+
+
 def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
     """Open a rosbag2 bag directory (``metadata.yaml`` and its storage files) or a bare storage
     file; every failure is one :class:`BagError` line. ``require_metadata``: a directory
     without ``metadata.yaml`` (a run killed before it closed its bag) is refused with the
     advice to rebuild it, rather than read from its storage files alone."""
     p = Path(path)
-    meta = None
-    if p.is_file():
-        storage, files = storage_of(p).name, [p]
-    elif p.is_dir():
-        meta = _read_metadata(p)
-        if meta is not None:
-            storage, files = _listed_files(p, meta)
-        else:
-            if require_metadata:
-                raise BagError(f'bag {str(p)!r} has no metadata.yaml (an interrupted run?); '
-                               f'rebuild it with: servovalve-twin reindex {p}')
-            files = []
-            for s in STORAGES.values():
-                files = sorted(p.glob('*' + s.suffix))
-                if files:
-                    break
-            special = [f for f in files if not f.is_file()]
-            if special:
-                # a FIFO (or a device) named like a storage file blocked every reader on
-                # its first read
-                raise BagError(f'bag {str(p)!r}: {special[0].name} is not a regular file; a '
-                               'storage file must be one')
-            if not files:
-                raise BagError(f'no bag at {str(p)!r}: no metadata.yaml or storage file ('
-                               + ', '.join(s.suffix for s in STORAGES.values()) + ')')
-            storage = storage_of(files[0]).name
-    else:
-        raise BagError(f'no bag at {str(p)!r}: not a directory or a storage file ('
-                       + ', '.join(s.suffix for s in STORAGES.values()) + ')')
+    meta, storage, files = _storage_files(p, require_metadata)
     if storage == 'sqlite3' and str(p) not in UNVERIFIED:
         UNVERIFIED.append(str(p))
     topics: dict[str, TopicInfo] = {}
@@ -147,31 +179,7 @@ def open_any_bag(path: str | Path, *, require_metadata: bool = False) -> AnyBag:
             start = t0 if start is None else min(start, t0)
             end = t1 if end is None else max(end, t1)
             count += n
-    custom = {}
-    if meta is not None:
-        entries = meta.get('topics_with_message_count') or []
-        for entry in entries if isinstance(entries, list) else []:
-            tm = entry.get('topic_metadata') if isinstance(entry, dict) else None
-            if not isinstance(tm, dict):
-                continue
-            name = tm.get('name')
-            n_meta = entry.get('message_count')
-            if isinstance(name, str) and isinstance(n_meta, int) and not isinstance(n_meta, bool) \
-                    and n_meta != (topics[name].count if name in topics else 0):
-                # sqlite3 keeps no checksum: a count that disagrees is what can be checked
-                raise BagError(f'bag {str(p)!r} is corrupt: metadata.yaml counts {n_meta} '
-                               f'messages on {name}, its storage files hold '
-                               f'{topics[name].count if name in topics else 0}')
-            if isinstance(name, str) and name in topics and tm.get('offered_qos_profiles') \
-                    is not None:
-                qos = normalise_qos(tm['offered_qos_profiles'])
-                if qos:
-                    topics[name].qos = qos
-        expected = meta.get('message_count')
-        if isinstance(expected, int) and expected > 0 and count == 0:
-            raise BagError(f'bag {str(p)!r}: metadata.yaml counts {expected} messages but its '
-                           'storage files hold none (truncated or corrupt)')
-        custom = meta.get('custom_data') if isinstance(meta.get('custom_data'), dict) else {}
+    custom = _checked_against(p, meta, topics, count) if meta is not None else {}
     if count == 0:
         raise BagError(f'bag {str(p)!r} holds no messages')
     version = int(meta['version']) if meta and isinstance(meta.get('version'), int) else None

@@ -100,6 +100,20 @@ def jit_run_fleet_for(model_id: int):
     return jit(own_cache_name(run_fleet, f'm{model_id}'))
 
 
+def _segment_arrays(segs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Each unit's parameter segments (kernels and start steps) as the compiled loop's two
+    arrays, one row a unit: a unit of fewer segments repeats its last kernel, never
+    started."""
+    n_seg = max(len(st) for _, st in segs)
+    P_arr = np.empty((len(segs), n_seg), dtype=segs[0][0].dtype)
+    seg_start = np.full((len(segs), n_seg), np.iinfo(np.int64).max, dtype=np.int64)
+    for u, (kern, st) in enumerate(segs):
+        P_arr[u, :len(st)] = kern
+        P_arr[u, len(st):] = kern[-1]
+        seg_start[u, :len(st)] = st
+    return P_arr, seg_start
+
+
 def simulate_many(valve_model: str, scenario: Scenario | Mapping,
                   params: Sequence[Any], *, ecu_period: float | None = None,
                   initial: Mapping[str, float] | None = None,
@@ -140,14 +154,8 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
     n_rows = n_steps // out_every + 1
     unit_scns = [scn if faults is None else dataclasses.replace(scn, faults=tuple(f))
                  for f in (faults or [None] * n_units)]
-    segs = [_fault_segments(model, us, p) for us, p in zip(unit_scns, units)]
-    n_seg = max(len(st) for _, st in segs)
-    P_arr = np.empty((n_units, n_seg), dtype=segs[0][0].dtype)
-    seg_start = np.full((n_units, n_seg), np.iinfo(np.int64).max, dtype=np.int64)
-    for u, (kern, st) in enumerate(segs):
-        P_arr[u, :len(st)] = kern
-        P_arr[u, len(st):] = kern[-1]
-        seg_start[u, :len(st)] = st
+    P_arr, seg_start = _segment_arrays([_fault_segments(model, us, p)
+                                        for us, p in zip(unit_scns, units)])
     s = np.zeros((n_units, S_SIZE))
     for name, value in (initial or {}).items():
         if name not in PLANT_STATE:
@@ -167,6 +175,13 @@ def simulate_many(valve_model: str, scenario: Scenario | Mapping,
             out, OUTPUT_PERIOD_NS * 1e-9, fail)
         if np.all(fail >= 0):
             break
+    return _results(model, unit_scns, units, out, fail, failed, ecu_period, vs, n_steps)
+
+
+def _results(model, unit_scns, units, out, fail, failed, ecu_period, vs, n_steps
+             ) -> list[RunResult | None]:
+    """Each unit's :class:`RunResult` from the fleet's output rows (None, or a
+    :class:`ModelError` with ``failed`` 'raise', for a unit whose valve model failed)."""
     cols = CSV_COLUMNS + (PORT_COLUMNS if model.has_ports else ())
     results: list[RunResult | None] = []
     for u, p in enumerate(units):

@@ -11,6 +11,14 @@ plant node (through :func:`run_tick`) take this step: :func:`plant_step`, which 
 :func:`run_steps_for` write out in their body because as a call there it ran twice as slow
 (measured; numba did not keep the state in registers across it). The tests hold the two to
 the last bit (a ROS run equals a ROS-free run, every column).
+
+One loop per valve model (:func:`jit_run_steps_for`): with the model's id an argument, the
+loop called :func:`valve_p12` out of line every step (its arguments on the stack, every live
+register spilled, a reference count taken and dropped on ``vs``). There the id is a constant
+of the loop (a closure variable; numba keys the cache on its value, so each model's loop is
+cached on its own) and the valve function is inlined: the other models' branches fold away.
+The arithmetic is that of :func:`plant_step`, in the same order, so the rows are
+bit-identical (tested against :func:`run_tick`).
 """
 
 import functools
@@ -71,20 +79,40 @@ def run_steps_for(model_id: int, sensed: bool = False):
     return aot_loop('steps', model_id, sensed) or jit_run_steps_for(model_id, sensed)
 
 
+@jit(inline='always')
+def write_row(row, t, com, fr, psr, cor, xs, xj, dxj, p12, qj, p1, p2):
+    """One output row of :data:`OUT_COLUMNS` (inlined into the loops: copies only)."""
+    row[0] = t
+    row[1] = com
+    row[2] = fr
+    row[3] = psr
+    row[4] = cor
+    row[5] = xs
+    row[6] = xj
+    row[7] = dxj
+    row[8] = p12
+    row[9] = qj
+    row[10] = p1
+    row[11] = p2
+
+
+@jit(inline='always')
+def write_readings(row, spec, held):
+    """With sensors: each sensed signal's truth into :data:`TRUTH_COLUMNS`, and its reading
+    in its own column where a sensor reads it."""
+    for m, col in enumerate(_SENSED_COLUMNS):
+        row[_TRUTH_START + m] = row[col]
+        if spec[m, C_ON] != 0.0:
+            row[col] = held[m]
+
+
 @functools.lru_cache(maxsize=None)
 def jit_run_steps_for(model_id: int, sensed: bool = False):
     """The step loop of the valve model with registry ``id`` = ``model_id`` (built once per
     model and process, its machine code loaded from numba's disk cache); ``sensed``: the loop
     with sensors (:mod:`.sensors`), whose ECU reads the measured XJ -- a loop of its own, so
-    that the loop without them is the one it always was (its branches fold away).
-
-    Why one loop per model: with the id an argument, the loop called :func:`valve_p12` out of
-    line every step (its arguments on the stack, every live register spilled, a reference
-    count taken and dropped on ``vs``). Here the id is a constant of the loop (a closure
-    variable; numba keys the cache on its value, so each model's loop is cached on its own)
-    and the valve function is inlined: the other models' branches fold away. The arithmetic is
-    that of :func:`plant_step`, in the same order, so the rows are bit-identical (tested
-    against :func:`run_tick`).
+    that the loop without them is the one it always was (its branches fold away). Why one
+    loop per model: the module docstring.
     """
     def run_steps(s, vs, P_arr, seg_start, com, fr, psr, i0, n, ecu_every, out_every,
                   carry, out, out_dt, spec, keys, held, sense_every):
@@ -146,24 +174,10 @@ def jit_run_steps_for(model_id: int, sensed: bool = False):
                 return i
             if i % out_every == 0:
                 row = i // out_every
-                out[row, 0] = row * out_dt
-                out[row, 1] = com[j]
-                out[row, 2] = fr[j]
-                out[row, 3] = psr[j]
-                out[row, 4] = cor
-                out[row, 5] = xs0
-                out[row, 6] = xj0
-                out[row, 7] = dxj0
-                out[row, 8] = p12
-                out[row, 9] = qj
-                out[row, 10] = vs[V_P1]
-                out[row, 11] = vs[V_P2]
+                write_row(out[row], row * out_dt, com[j], fr[j], psr[j], cor, xs0, xj0, dxj0,
+                          p12, qj, vs[V_P1], vs[V_P2])
                 if sensed:
-                    # the truth beside; the readings where a sensor reads
-                    for m, col in enumerate(_SENSED_COLUMNS):
-                        out[row, _TRUTH_START + m] = out[row, col]
-                        if spec[m, C_ON] != 0.0:
-                            out[row, col] = held[m]
+                    write_readings(out[row], spec, held)
         s[S_XF], s[S_DXF], s[S_XS], s[S_XJ], s[S_DXJ] = xf, dxf, xs, xj, dxj
         carry[0] = cor
         carry[1] = k

@@ -70,18 +70,13 @@ import numpy as np
 from ..errors import TwinError
 from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, EhaParams
-from .conformal import enough, units_needed, z_of
+from .calibration import alpha_of, calibration_for, onset_widen
 from .fitting import (FREEABLE_BIAS, SIGNALS, Problem, bootstrap_intervals, effective_n, fit,
                       free_interval, free_start, jacobian_interval, ratio_interval, start_grid)
-from .rules import (DETECTABLE, DIAGNOSABLE, ONSET_ENTRY, PAIR_EVIDENCE, above_floor,
-                    onset_entry, sized)
+from .modelform import apply_model_form, reported_severity
+from .rules import DETECTABLE, DIAGNOSABLE, PAIR_EVIDENCE, above_floor, onset_entry, sized
 from .verdict import HEALTHY, UNEXPLAINED, Candidate, Diagnosis
 
-#: no hypothesis explains a run whose best fit's RMS exceeds UNEXPLAINED_FACTOR times the
-#: REFERENCE_QUANTILE of the right hypotheses' fits in the calibration set (the quantile, not
-#: the maximum: a few fits of the set itself stop in a wrong valley)
-REFERENCE_QUANTILE = 0.98
-UNEXPLAINED_FACTOR = 1.5
 #: severities per fault of a pair's start grid
 PAIR_GRID = 5
 #: without --pairs, a pair of the verdict's fault and another that beats the verdict by
@@ -102,13 +97,16 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
              start: float | None = None, model_form: bool = True,
              onset: bool = False, scenario: str | None = None,
              from_rest: bool = True, calibration: Mapping[str, Any] | None = None,
-             sensor_bias: Mapping[str, float] | None = None) -> Diagnosis:
+             sensor_bias: Mapping[str, float] | None = None, second_fault: bool = True
+             ) -> Diagnosis:
     """Fit every hypothesis and rank them (see the module docstring).
 
     :param signals: the run's 1 ms rows (``read_bag(...).signals``, ``simulate(...).signals``)
     :param design: the parameters the run was meant to have (a bag's provenance)
     :param control_period: the ECU's sampling period of the run [s]
     :param pairs: also fit every two of ``faults`` at once
+    :param second_fault: without ``pairs``, screen a single-fault verdict for a second fault
+        (:func:`_second_fault`); False where only the ranking is read (a calibration's units)
     :param start: run the model from this instant [s] (at most the window's start), from the
         recorded XJ and DXJ there, instead of from t = 0: the cost of a fit is then that of
         ``window end - start`` whatever the run's length (the live estimator's warm-up)
@@ -138,86 +136,113 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
     results, singles = _fit_hypotheses(problem, faults, free, pairs)
     n = len(results[0][2])
     n_eff = effective_n(results[0][2], len(SIGNALS))
-    candidates = [_candidate(problem, *r, free, n, n_eff) for r in results]
-    candidates.sort(key=lambda c: c.score)
-    # the verdict: the best-scoring hypothesis, healthy where that is a fault below a size
-    # worth reporting (DETECTABLE of its alarm severity: the model's own mismatch -- a healthy
-    # HD unit fits a 2 % null bias under SQ -- or a fault below what the flight can show).
-    # It never hands the run to the next hypothesis: on a flight where SQ's mismatch looked
-    # like a small gain loss (0.053, below its floor), the walk down the ranking named the
-    # next fault above its own floor (a supply loss of 0.073) in every healthy unit. The size is
-    # the model-form-corrected one, the severity the answer would state and the detection
-    # limits are in: SQ reads a leak on the paper flight ~10 % low, and a 1.7 x leak (limit
-    # 1.585 x), fitted at 1.45-1.54, was called healthy (measured)
-    from .calibration import calibration_for, onset_widen
-    if calibration is not None:
-        cal = calibration if model_form else None
-    else:
-        cal = calibration_for(model, free) if model_form else None
-    by_name = {c.fault: c for c in candidates}
-    best = _verdict_candidate(candidates, by_name, cal, scenario)
+    candidates = sorted((_candidate(problem, *r, free, n, n_eff) for r in results),
+                        key=lambda c: c.score)
+    cal = (calibration if calibration is not None else calibration_for(model, free)) \
+        if model_form else None
+    best = _verdict_candidate(candidates, {c.fault: c for c in candidates}, cal, scenario)
     candidates.remove(best)
     candidates.insert(0, best)
-    second = None
-    if not pairs and not onset and len(best.faults) == 1 and len(faults) > 1:
-        second = _second_fault(problem, best, singles, candidates, free, n, n_eff)
-        if second is not None:
-            candidates.insert(1, second)
-    if best.fault != HEALTHY:
-        hyp, x, res, jac = next(r for r in results if '+'.join(r[0]) == best.fault)
-        n_own = effective_n(res, len(SIGNALS))
-        ivs = [ratio_interval(problem, hyp, i, x, free, res, n, n_own, jac)
-               for i in range(len(hyp))]
-        best.interval = ivs[0] if len(ivs) == 1 else ivs
-        bounds = [_one_sided(f, iv) for f, iv in zip(hyp, ivs)]
-    else:
-        bounds = []
-    from .onset import fit_onset
-    # an answer refitted at an onset has an error of its own (the fault seen over part of the
-    # window, its instant estimated): the calibration's onset units on this flight (else on
-    # every onset flight) set its correction, its spread and how wide against the noise's
-    # alone the onset's interval is
+    second = _second_fault(problem, best, singles, candidates, free, n, n_eff) if \
+        second_fault and not (pairs or onset) and len(best.faults) == 1 and len(faults) > 1 \
+        else None
+    if second is not None:
+        candidates.insert(1, second)
+    bounds = _verdict_interval(problem, best, results, free, n)
+    # an onset answer's error is its own (the fault seen over part of the window, its instant
+    # estimated): the calibration's onset units on this flight (else on every onset flight)
+    # set its correction, its spread and its onset interval's width against the noise's
     entry = onset_entry(cal, scenario)
-    # the single faults the run cannot tell from the verdict: within PAIR_EVIDENCE of it in
-    # the information criterion, from the start or (``onset``) from an onset of their own
-    rivals = [] if best.fault == HEALTHY or len(best.faults) > 1 else [
-        c.fault for c in candidates[1:] if len(c.faults) == 1
-        and c.score - best.score < PAIR_EVIDENCE and _detectable(c, cal=cal, scenario=scenario)]
-    onset_fit = fit_onset(problem, candidates, n, n_eff,
-                          lambda f, s: reported_severity(cal, f, s, entry),
-                          widen=onset_widen(cal, entry), rivals=rivals) if onset else None
-    onset_profile = onset_fit.pop('profile', None) if onset_fit else None
-    # a fault that may have begun any time up to the onset interval's end: its severity is
-    # what fits from the start or from that late (:func:`.onset.severity_range`), and where
-    # that reaches the catalog's end the answer is a one-sided bound
-    late_range = onset_fit.pop('severity_range', None) if onset_fit else None
-    if onset_fit is not None:
-        # (the factor is set for 1 - alpha of the calibration's onset units; without it
-        # the interval is the noise's 95 % likelihood-ratio one)
-        from .calibration import alpha_of
-        onset_fit['confidence'] = 1.0 - alpha_of(cal) if cal is not None else 0.95
-    # an onset refitted the verdict at it (not when the fit from the start stands and only
-    # when the fault began is in doubt)
+    rivals = _rivals(best, candidates, cal, scenario)
+    onset_fit, onset_profile, late_range = _onset_answer(
+        problem, candidates, n, n_eff, cal, entry, rivals) if onset else (None, None, None)
     refitted = onset_fit is not None and not onset_fit.get('from_start')
     if refitted:
         best, bounds = candidates[0], ['']
-    # (the bootstrap refits faults present from the start: not an onset's)
-    if bootstrap and best.fault != HEALTHY and not refitted:
+    bounds = _widened(problem, best, bounds, free, bootstrap if not refitted else 0, seed,
+                      late_range)
+    d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
+                  evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
+                  fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit,
+                  onset_profile=onset_profile,
+                  rivals=sorted(set(rivals) - {best.fault}))
+    _warn(d, second, onset_fit, bounds)
+    if model_form:
+        apply_model_form(d, cal, free, entry if refitted else scenario, problem)
+    return d
+
+
+def _verdict_interval(problem: Problem, best: Candidate, results: list, free: list[str],
+                      n: int) -> list[str]:
+    """The verdict's likelihood-ratio interval per fault, set on ``best``; returns the
+    one-sided bound each supports ('' where it is two-sided; none for healthy)."""
+    if best.fault == HEALTHY:
+        return []
+    hyp, x, res, jac = next(r for r in results if '+'.join(r[0]) == best.fault)
+    n_own = effective_n(res, len(SIGNALS))
+    ivs = [ratio_interval(problem, hyp, i, x, free, res, n, n_own, jac)
+           for i in range(len(hyp))]
+    best.interval = ivs[0] if len(ivs) == 1 else ivs
+    return [_one_sided(f, iv) for f, iv in zip(hyp, ivs)]
+
+
+def _widened(problem: Problem, best: Candidate, bounds: list[str], free: list[str],
+             bootstrap: int, seed: int, late_range: tuple[float, float] | None) -> list[str]:
+    """The verdict's interval from ``bootstrap`` refits where asked (they refit faults present
+    from the start: not an onset's), joined with ``late_range`` where the fault may have begun
+    any time up to the onset interval's end (and where that reaches the catalog's end the
+    answer is a one-sided bound); returns the bounds."""
+    if bootstrap and best.fault != HEALTHY:
         boot = bootstrap_intervals(problem, best, free, bootstrap, seed)
         best.interval = boot[0] if len(boot) == 1 else boot
     if late_range is not None:
         best.interval = (min(best.interval[0], late_range[0]),
                          max(best.interval[1], late_range[1]))
         bounds = [_one_sided(best.fault, best.interval)]
-    d = Diagnosis(model=model, window=problem.window, candidates=candidates, n_eff=n_eff,
-                  evaluations=problem.evaluations, recorded=dict(problem.recorded, t=problem.t),
-                  fit_rms=math.sqrt(best.rss / n), bounds=bounds, onset=onset_fit,
-                  onset_profile=onset_profile,
-                  rivals=sorted(set(rivals) - {best.fault}))
+    return bounds
+
+
+def _rivals(best: Candidate, candidates: list[Candidate], cal: Mapping[str, Any] | None,
+            scenario: str | None) -> list[str]:
+    """The single faults the run cannot tell from the verdict: within PAIR_EVIDENCE of it in
+    the information criterion and worth reporting, from the start or (``onset``) from an onset
+    of their own."""
+    if best.fault == HEALTHY or len(best.faults) > 1:
+        return []
+    return [c.fault for c in candidates[1:] if len(c.faults) == 1
+            and c.score - best.score < PAIR_EVIDENCE
+            and _detectable(c, cal=cal, scenario=scenario)]
+
+
+def _onset_answer(problem: Problem, candidates: list[Candidate], n: int, n_eff: float,
+                  cal: Mapping[str, Any] | None, entry: str, rivals: list[str]
+                  ) -> tuple[dict | None, Any, tuple[float, float] | None]:
+    """When the verdict's fault began (:func:`.onset.fit_onset`, sizes as the verdict states
+    them with the onset entry ``entry`` of ``cal``): (the onset answer, its profile, the
+    severity range of a fault that may have begun any time up to the onset interval's end --
+    what fits from the start or from that late, :func:`.onset.severity_range`). The answer
+    refits the verdict at the onset unless the fit from the start stands and only when the
+    fault began is in doubt (``from_start``)."""
+    from .onset import fit_onset
+    onset_fit = fit_onset(problem, candidates, n, n_eff,
+                          lambda f, s: reported_severity(cal, f, s, entry),
+                          widen=onset_widen(cal, entry), rivals=rivals)
+    if onset_fit is None:
+        return None, None, None
+    # (the factor is set for 1 - alpha of the calibration's onset units; without it the
+    # interval is the noise's 95 % likelihood-ratio one)
+    onset_fit['confidence'] = 1.0 - alpha_of(cal) if cal is not None else 0.95
+    return onset_fit, onset_fit.pop('profile', None), onset_fit.pop('severity_range', None)
+
+
+def _warn(d: Diagnosis, second: Candidate | None, onset_fit: dict | None,
+          bounds: list[str]) -> None:
+    """What the answer cannot say, in the diagnosis' warnings: two faults at once, an onset
+    or a severity the flight does not pin."""
     if second is not None:
         d.verdict = UNEXPLAINED
         d.warnings.append(f'unexplained: two faults at once ({second.fault}) fit better than '
-                          f'{best.fault} alone by {best.score - second.score:.0f} in the '
+                          f'{d.best.fault} alone by {d.best.score - second.score:.0f} in the '
                           f'information criterion (more than {SECOND_FAULT_EVIDENCE:g}): '
                           'outside the single-fault hypotheses; diagnose with --pairs')
     if onset_fit is not None and not onset_fit['identifiable']:
@@ -229,9 +254,6 @@ def diagnose(signals: Mapping[str, np.ndarray], design: EhaParams, *, control_pe
         d.warnings.append('not identifiable on this run: ' + '; '.join(b for b in bounds if b)
                           + ' (the fit does not change beyond it: only a flight that excites '
                           'it more can pin it)')
-    if model_form:
-        _apply_model_form(d, cal, free, entry if refitted else scenario, problem)
-    return d
 
 
 def _hypotheses(faults: Sequence[str], free: Sequence[str], pairs: bool) -> list[str]:
@@ -359,173 +381,6 @@ def _second_fault(problem: Problem, best: Candidate, singles: Mapping[str, np.nd
     return found
 
 
-def _apply_model_form(d: Diagnosis, cal: Mapping[str, Any] | None, free: Sequence[str],
-                      scenario: str | None, problem: Problem) -> None:
-    """The calibration ``cal`` (of the model with ``free`` nuisance; None: none packaged):
-    its bias correction and model-form spread on the verdict, and the goodness-of-fit test
-    (see :mod:`.calibration`).
-
-    The test's limit is the larger of two: the calibration set's (right hypotheses on the
-    calibration flights) and :data:`UNEXPLAINED_FACTOR` times the model's own misfit on this
-    flight (:func:`flight_model_form_rms`). A flight beyond the calibration's -- a 2-30 Hz chirp,
-    where SQ's nominal run is 5.4 residual scales from HD's against 0.8-1 on the calibration
-    flights -- made every healthy unit 'unexplained' though no fault improved on healthy: the
-    misfit was the model's, which this flight shows as it shows any fault's."""
-    from .calibration import alpha_of, gof_p_value, gof_reference, past_by, to_g
-    if cal is None:
-        d.warnings.append(f'no model-form calibration for {d.model} with free '
-                          f'{",".join(sorted(free)) or "none"}: the interval counts the '
-                          'measurement noise only')
-        return
-    d.calibration = cal
-    d.calibration_scenario = scenario if scenario in (cal.get('by_scenario') or {}) else None
-    # an answer past its fault's alarm value is tested against every right fit, those past
-    # it included (they fit worse)
-    past = len(d.best.faults) == 1 and past_by(d.best.fault,
-                                               to_g(d.best.fault, d.best.severity)) > 0
-    d.p_value = gof_p_value(cal, d.fit_rms, past)
-    d.fit_limit = UNEXPLAINED_FACTOR * float(np.quantile(gof_reference(cal, past),
-                                                         REFERENCE_QUANTILE))
-    d.flight_model_form_rms = flight_model_form_rms(problem)
-    own = UNEXPLAINED_FACTOR * (d.flight_model_form_rms or 0.0)
-    if own > d.fit_limit:
-        d.fit_limit = own
-        d.warnings.append(f'{d.model} follows HD on this flight to RMS '
-                          f'{d.flight_model_form_rms:.3g} of the residual scales, beyond the '
-                          'calibration flights\' mismatch: a fit is unexplained only beyond '
-                          f'{own:.3g} here, and the calibrated intervals may be too narrow')
-    if d.fit_rms > d.fit_limit:
-        d.verdict = UNEXPLAINED
-        d.warnings.append(f'no hypothesis explains the run: the best ({d.best.fault}) fits with '
-                          f'RMS {d.fit_rms:.3g} of the residual scales, beyond {d.fit_limit:.3g} '
-                          f'({UNEXPLAINED_FACTOR:g} x the {REFERENCE_QUANTILE:.0%} quantile of '
-                          f'right hypotheses in the calibration set, or of the model\'s own '
-                          f'misfit on this flight; p = {d.p_value:.2g})')
-        return
-    best = d.best
-    if best.fault == HEALTHY:
-        hidden = [f for f, s in (cal.get('revealed_from') or {}).items() if s is None]
-        if hidden:
-            # healthy means "no fault this flight reveals": say which it does not
-            d.warnings.append('this flight does not reveal ' + ', '.join(hidden) + ' (its '
-                              'calibration units at the alarm value were not all named): '
-                              'fly the built-in test (servovalve-twin bit --out bit.yaml) '
-                              'to see them')
-        return
-    best.raw = (best.severity, best.interval)
-    sevs, ivs = [], []
-    from .calibration import POOLED, resolve_entry
-    alpha = alpha_of(cal)
-    for f, s, iv in zip(best.faults, best.severities, best.intervals):
-        c, group = resolve_entry(cal, f, scenario)
-        if c is None:
-            # never a noise-only interval stated as calibrated without a word
-            d.warnings.append(f'the model-form calibration has no entry for {f} (too few of '
-                              'its units were named): its interval counts the measurement '
-                              'noise only and may be too narrow')
-        elif group == POOLED and (scenario or '').startswith(ONSET_ENTRY):
-            d.warnings.append(f'no onset unit of {f} in the calibration: the interval takes '
-                              'the spread of answers fitted from the start, which an onset\'s '
-                              'may exceed')
-        if c is not None and not enough(c['scored'], alpha):
-            d.warnings.append(f'the calibration of {f} stands on {c["scored"]} units, fewer '
-                              f'than the {units_needed(alpha)} a {1 - alpha:.0%} conformal '
-                              'bound needs: its interval is the widest they ask, not '
-                              'guaranteed')
-        s, iv, _ = model_form_estimate(cal, f, s, iv, scenario)
-        sevs.append(s)
-        ivs.append(iv)
-    best.severity = sevs[0] if len(sevs) == 1 else sevs
-    best.interval = ivs[0] if len(ivs) == 1 else ivs
-    d.confidence = 1.0 - alpha
-    # a calibration whose units fly severities up to each fault's alarm value only (one
-    # built before it flew units past it, or a fault it has too few of there): an interval
-    # wholly past it is extrapolated (at 1.15 of the way, 12 of 18 onset answers' intervals
-    # held the truth: measured)
-    for f, iv in zip(best.faults, ivs):
-        if min(past_by(f, to_g(f, s)) for s in iv) <= 0:
-            continue
-        past = (cal.get('past') or {}).get(f)
-        if past is None:
-            d.warnings.append(f'{f} past its alarm value ({FAULTS[f].demo:g}): the model-form '
-                              'calibration flies severities up to it, so this answer is '
-                              'extrapolated and its interval may be too narrow')
-        elif not enough(past.get('scored', past['units']), alpha):
-            d.warnings.append(f'{f} past its alarm value: the calibration\'s growth of the '
-                              f'spread there stands on {past.get("scored", past["units"])} '
-                              f'units, fewer than the {units_needed(alpha)} a '
-                              f'{1 - alpha:.0%} conformal bound needs: not guaranteed')
-    d.interval_counts = 'measurement noise and the model-form error calibrated against HD' + (
-        ' for a fault that began mid-flight' if (d.calibration_scenario or '').startswith(
-            ONSET_ENTRY) else
-        f' on this flight ({d.calibration_scenario})' if d.calibration_scenario else '')
-
-
-def flight_model_form_rms(problem: Problem) -> float | None:
-    """The fitted model's own misfit on the recorded flight: the RMS, in residual scales, of
-    its run at the design parameters against HD's at the same parameters, both on the
-    recorded inputs over the window (one HD run: ~9 ms per second of flight). None where HD
-    does not converge on those inputs."""
-    from ..physics.simulate import simulate
-    try:
-        hd = simulate('HD', problem.scenario, params=problem.design,
-                      ecu_period=problem.control_period, initial=problem.initial)
-    except TwinError:
-        return None
-    own = problem.run(problem.params((), [], {}))
-    if own is None:
-        return None
-    r = problem.residuals(own, {s: hd[s][problem.model_rows] for s in SIGNALS})
-    return float(np.sqrt(np.mean(r * r)))
-
-
-#: a fit within this fraction of the catalog's range of its end is at the end (censored)
-CENSORED = 1e-6
-
-
-def model_form_estimate(cal: Mapping[str, Any], fault: str, severity: float,
-                        interval95: tuple[float, float], scenario: str | None = None
-                        ) -> tuple[float, tuple[float, float], float]:
-    """A fault's severity less the calibrated bias, its 90 % interval with the model-form
-    spread (the fit's 95 % interval read as a standard error), and that spread as a relative
-    standard deviation of the distance from healthy (what :func:`..prognosis.prognose` takes
-    as ``model_sigma``). Unchanged, with a spread of 0, for a fault the calibration lacks.
-    ``scenario``: the calibration scenario the flight is (its own entry, where there is one).
-    A fit past the fault's alarm value is corrected further, and its spread widened, by the
-    calibration's units past it (:func:`.calibration.past_correction`)."""
-    from .calibration import (alpha_of, bias_at, fault_calibration, from_g, past_correction,
-                              spread_of, to_g)
-    spec = FAULTS[fault]
-    c = fault_calibration(cal, fault, scenario)
-    lo, hi = interval95
-    if c is None:
-        return severity, (lo, hi), 0.0
-    se = (to_g(fault, hi) - to_g(fault, lo)) / (2 * 1.96)
-    g = to_g(fault, severity)
-    further, c = past_correction(cal, fault, g, c, (scenario or '').startswith(ONSET_ENTRY))
-    g = g - bias_at(c, g) - further
-    half = z_of(alpha_of(cal)) * spread_of(c, se)
-    est = min(max(from_g(fault, g), spec.lo), spec.hi)
-    iv = (min(max(from_g(fault, g - half), spec.lo), spec.hi),
-          max(min(from_g(fault, g + half), spec.hi), spec.lo))
-    # a fit stopped at an end of the catalog's range (not healthy's) is censored there:
-    # unbounded it would read beyond, so the truth may lie anywhere up to that end (a null
-    # bias at its alarm value, -5 mA, the catalog's end, from 0.6 s on the built-in test:
-    # fitted at -5.000 mA, corrected to -4.91 with a spread of +-0.01 that missed the truth:
-    # measured); so is one whose own interval runs to that end, the one-sided answer
-    # (``bounds``: a static friction of 20 x fitted 16.5 x, flat from 8.3 x to 50 x, was
-    # answered ">= 8.3" with a corrected interval ending at 28)
-    tol = CENSORED * (spec.hi - spec.lo)
-    for end in (spec.lo, spec.hi):
-        if end != spec.healthy and min(abs(v - end) for v in (severity, lo, hi)) <= tol:
-            iv = (min(iv[0], end), max(iv[1], end))
-    # the spread in g as a relative error of s - h: dg * s/(s - h) for a multiplier (g = ln
-    # s/h), dg * span/|s - h| for a fraction or value; capped where s is near healthy
-    dist = max(abs(est - spec.healthy), 0.05 * abs(spec.demo - spec.healthy))
-    rel = c['sigma'] * (est if spec.kind == 'scale' else abs(spec.demo - spec.healthy)) / dist
-    return est, iv, float(min(rel, 0.5))
-
-
 def _one_sided(fault: str, interval: tuple[float, float]) -> str:
     """'' where the likelihood-ratio interval ends inside the catalog's range on the side away
     from healthy; else the one-sided bound it supports (the near end)."""
@@ -540,24 +395,22 @@ def _one_sided(fault: str, interval: tuple[float, float]) -> str:
     return f'{fault} {">=" if up else "<="} {near:.4g}'
 
 
-def reported_severity(cal: Mapping[str, Any] | None, fault: str, severity: float,
-                      scenario: str | None) -> float:
-    """The severity a verdict states for a fit of ``severity``: less the calibrated bias of
-    ``fault`` (the scenario's own entry where there is one), kept within the catalog's range
-    (:func:`model_form_estimate`'s); unchanged without a calibration of the fault. The verdict
-    floor of a flight's calibration and the detection limits are sizes in it, so that a fault
-    is named only where its stated size clears them (two healthy units of a sine flight were
-    named a gain loss fitted above the floor but stated at 0.0: measured)."""
-    if cal is None:
-        return severity
-    return model_form_estimate(cal, fault, severity, (severity, severity), scenario)[0]
-
-
 def _verdict_candidate(candidates: list[Candidate], by_name: Mapping[str, Candidate],
                        cal: Mapping[str, Any] | None, scenario: str | None) -> Candidate:
     """The verdict among ``candidates`` (best score first): a pair only with both faults
     worth reporting and PAIR_EVIDENCE better than each of its singles (else the ranking goes
-    on to them); the first single fault if it is worth reporting, else healthy."""
+    on to them); the first single fault if it is worth reporting, else healthy.
+
+    Worth reporting: beyond the flight's verdict floor, or DETECTABLE of its alarm severity
+    without a flight calibration (below it is the model's own mismatch -- a healthy HD unit
+    fits a 2 % null bias under SQ -- or a fault below what the flight can show). A single
+    fault below it never hands the run to the next hypothesis: on a flight where SQ's
+    mismatch looked like a small gain loss (0.053, below its floor), the walk down the
+    ranking named the next fault above its own floor (a supply loss of 0.073) in every
+    healthy unit. The size is the one the answer would state (:func:`.modelform.
+    reported_severity`), which the detection limits are in: SQ reads a leak on the paper
+    flight ~10 % low, and a 1.7 x leak (limit 1.585 x), fitted at 1.45-1.54, was called
+    healthy (measured)."""
     for c in candidates:
         if c.fault == HEALTHY:
             return c
@@ -584,5 +437,4 @@ def _detectable(c: Candidate, fraction: float = DETECTABLE,
     return out
 
 
-__all__ = ['diagnose', 'Diagnosis', 'Candidate', 'DIAGNOSABLE', 'HEALTHY', 'UNEXPLAINED',
-           'model_form_estimate', 'reported_severity']
+__all__ = ['diagnose', 'Diagnosis', 'Candidate', 'DIAGNOSABLE', 'HEALTHY', 'UNEXPLAINED']

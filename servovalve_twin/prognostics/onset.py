@@ -277,6 +277,35 @@ def _rivals(problem: Problem, profiles: list[OnsetProfile], fault: str, rss: flo
     return out
 
 
+def _profiles(problem: Problem, candidates: list[Candidate], singles: list[Candidate]
+              ) -> list[OnsetProfile]:
+    """Each single fault's cost at the onsets of a coarse grid of the window and around its
+    change point (:func:`change_point`), the leading one refined, and every one tried at the
+    leader's instant."""
+    healthy = next((c for c in candidates if c.fault == HEALTHY), None)
+    t0, t1 = problem.window
+    lo_t, hi_t = max(t0, problem.t_start) + 0.005, t1 - 0.05
+    grid = np.linspace(lo_t, hi_t, ONSET_GRID)
+    profiles = [OnsetProfile(problem, c) for c in singles]
+    for prof in profiles:
+        tc = change_point(problem, healthy, prof.cand) if healthy is not None else None
+        near = [] if tc is None else [tc + d for d in AROUND_CHANGE if lo_t <= tc + d <= hi_t]
+        for t in list(grid) + near:
+            prof.cost(t)
+    # the instant the best hypothesis finds is tried by every one: an onset's cost can be far
+    # narrower than the grid (a supply loss of 0.18 from 0.6 s fits with RSS 3.0e3 at 0.600 s
+    # and not at all at 0.595 or 0.61 s: the grid missed it, and leakage growth from 0.599 s
+    # won with 4.8e3: measured)
+    lead = min(profiles, key=lambda pr: pr.best()[2])
+    _refine(lead)
+    t_lead = lead.best()[0]
+    for pr in profiles:
+        for t in (t_lead + d for d in SHARED):
+            if lo_t <= t <= hi_t:
+                pr.cost(t)
+    return profiles
+
+
 def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: float,
               unbiased: Callable[[str, float], float] | None = None, widen: float = 1.0,
               rivals: list[str] | None = None) -> dict[str, Any] | None:
@@ -301,27 +330,8 @@ def fit_onset(problem: Problem, candidates: list[Candidate], n: int, n_eff: floa
     singles = [c for c in candidates if len(c.faults) == 1]
     if not singles:
         return None
-    healthy = next((c for c in candidates if c.fault == HEALTHY), None)
     t0, t1 = problem.window
-    lo_t, hi_t = max(t0, problem.t_start) + 0.005, t1 - 0.05
-    grid = np.linspace(lo_t, hi_t, ONSET_GRID)
-    profiles = [OnsetProfile(problem, c) for c in singles]
-    for prof in profiles:
-        tc = change_point(problem, healthy, prof.cand) if healthy is not None else None
-        near = [] if tc is None else [tc + d for d in AROUND_CHANGE if lo_t <= tc + d <= hi_t]
-        for t in list(grid) + near:
-            prof.cost(t)
-    # the instant the best hypothesis finds is tried by every one: an onset's cost can be far
-    # narrower than the grid (a supply loss of 0.18 from 0.6 s fits with RSS 3.0e3 at 0.600 s
-    # and not at all at 0.595 or 0.61 s: the grid missed it, and leakage growth from 0.599 s
-    # won with 4.8e3: measured)
-    lead = min(profiles, key=lambda pr: pr.best()[2])
-    _refine(lead)
-    t_lead = lead.best()[0]
-    for pr in profiles:
-        for t in (t_lead + d for d in SHARED):
-            if lo_t <= t <= hi_t:
-                pr.cost(t)
+    profiles = _profiles(problem, candidates, singles)
     # a change point of a fault too small to report is the mismatch's, as from the start (a
     # static friction below its limit read as a 1.2-1.5 x dynamic friction from a wrong
     # instant: measured)

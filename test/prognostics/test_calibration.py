@@ -310,7 +310,7 @@ def test_the_error_past_the_alarm_value_is_a_line_from_it_and_moves_nothing_else
     those of the units up to the alarm value alone. An estimate short of the alarm value is
     not corrected further; past it by 0.5 in g it is, by -0.1, its spread grown by the rate
     times 0.5; either side of the alarm value the answer is continuous."""
-    from servovalve_twin.prognostics.diagnosis import model_form_estimate
+    from servovalve_twin.prognostics.modelform import model_form_estimate
     rng = np.random.default_rng(11)
     ga = math.log(10.0)
     rec = [_leak(rng, rng.uniform(0.5, ga), -0.05, level=0.5) for _ in range(60)]
@@ -425,7 +425,7 @@ def test_an_onset_flight_without_enough_units_falls_back_to_the_onset_entry():
     """An onset flight's own entry, on fewer than OWN_UNITS units, takes the larger spread of
     its own and the pooled onset entry's -- not the from-start pooled one's -- and a flight
     without onset units takes the pooled onset entry and its factor."""
-    from servovalve_twin.prognostics.diagnosis import onset_entry
+    from servovalve_twin.prognostics.rules import onset_entry
     line = dict(bias=0.0, slope=0.0, g0=0.0, k=1.0)
     cal = dict(faults={'leakage_growth': dict(line, sigma=0.5, units=99)},
                by_scenario={'onset': {'leakage_growth': dict(line, sigma=0.2, units=40)},

@@ -178,7 +178,7 @@ def test_a_flight_the_model_follows_poorly_raises_its_own_limit_not_an_alarm():
     model's own misfit on the flight -- computed here independently, from the two nominal
     runs -- and the verdict is healthy, with a warning that the flight is beyond the
     calibration; on the paper flight the calibrated limit stands, the warning absent."""
-    from servovalve_twin.prognostics.diagnosis import UNEXPLAINED_FACTOR
+    from servovalve_twin.prognostics.modelform import UNEXPLAINED_FACTOR
     from servovalve_twin.prognostics.fitting import RESIDUAL_SCALE
     from servovalve_twin.prognostics.thresholds import chirp
     flight = chirp(2.0, 30.0, 0.005, 2.0, 6000.0)
@@ -262,6 +262,12 @@ def test_two_faults_without_pairs_are_unexplained_not_a_single_name():
     assert pair.fault == 'supply_loss+torque_motor_gain_loss'
     assert pair.severity == pytest.approx([0.3, 0.5], rel=0.15)
     assert any('--pairs' in w for w in d.warnings)
+    # without the screen, as a calibration's units are diagnosed: the ranking alone
+    alone = diagnose(run.signals, DEFAULTS, control_period=1e-3, model='SQ', model_form=False,
+                     second_fault=False)
+    assert alone.best.fault == 'supply_loss'
+    assert not any('+' in c.fault for c in alone.candidates)
+    assert not any('--pairs' in w for w in alone.warnings)
 
 
 def test_a_single_hd_fault_passes_the_second_look():
@@ -582,7 +588,7 @@ def test_a_severity_at_the_catalogs_end_keeps_that_end_in_its_interval():
     would have read beyond); so it does for a fit inside the range whose own interval runs to
     the end (the one-sided answer). The same at +5 mA; not at healthy's end of a multiplier (a
     leak fitted at 1 x is not censored)."""
-    from servovalve_twin.prognostics.diagnosis import model_form_estimate
+    from servovalve_twin.prognostics.modelform import model_form_estimate
     entry = dict(bias=-0.02, slope=0.0, sigma=0.01, k=1.0, units=30)
     cal = dict(faults=dict(null_bias=entry, leakage_growth=entry, static_friction=entry),
                by_scenario={})
