@@ -28,8 +28,8 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, LEVELS, end_level,
-                                                     past_level, severity_at, unit_signals)
+from servovalve_twin.prognostics.calibration_set import (CAL_SCENARIOS, LEVELS, end_level,
+                                                         past_level, severity_at, unit_signals)
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, HEALTHY, UNEXPLAINED, diagnose
 from servovalve_twin.prognostics.metrics import detection_rates, interval_coverage
 
@@ -137,7 +137,7 @@ def near_limits(units: int, seed: int, spread: float, free, scens) -> None:
     from bench_onset import in_catalog
     from bench_physics import machine
     from servovalve_twin.physics.faults import FAULTS
-    from servovalve_twin.prognostics.calibration import to_g
+    from servovalve_twin.prognostics.calibration_set import to_g
     from servovalve_twin.prognostics.excitation import detection_limits
     base = seed * 4_444_441 + 23                 # never a calibration seed (those are 7e6+)
     jobs, k = [], 0

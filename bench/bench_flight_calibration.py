@@ -45,7 +45,7 @@ import numpy as np
 from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import from_g, to_g, unit_signals
+from servovalve_twin.prognostics.calibration_set import from_g, to_g, unit_signals
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, HEALTHY, diagnose
 from servovalve_twin.prognostics.flight_calibration import OWN, calibrate_flight, unit_seed
 

@@ -16,7 +16,7 @@ import numpy as np
 from servovalve_twin.config import builtin_scenarios, load_scenario
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import NOISE, VARY
+from servovalve_twin.prognostics.calibration_set import NOISE, VARY
 from servovalve_twin.prognostics.monitor import ERROR, WARN, monitor_run
 from servovalve_twin.prognostics.thresholds import chirp, random_steps
 from servovalve_twin.prognostics.sweep import draw_nuisance, measured

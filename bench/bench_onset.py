@@ -21,7 +21,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import severity_at, unit_signals
+from servovalve_twin.prognostics.calibration_set import severity_at, unit_signals
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, diagnose
 
 #: when the fault begins, as fractions of the flight

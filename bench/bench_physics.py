@@ -73,7 +73,7 @@ RATIO = '''
 import sys, time, json
 from servovalve_twin.runs import simulate
 from servovalve_twin.config import load_scenario
-from servovalve_twin.prognostics.calibration import NOISE
+from servovalve_twin.prognostics.calibration_set import NOISE
 # the paper scenario read by noisy XJ, DXJ and P12 sensors (the documented noise levels)
 noisy = dict(load_scenario('paper').to_dict(),
              sensors={'seed': 1, **{k: {'noise': v} for k, v in NOISE.items()}})

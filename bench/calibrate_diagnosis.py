@@ -20,14 +20,12 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import (CAL_SCENARIOS, CALIBRATION_FILE, LEVELS,
-                                                     EXTRA_UNITS, NOISE, ONSET_EXTRA,
-                                                     ONSET_SCENARIOS,
-                                                     ONSET_UNITS, ONSET_WINDOW, PAST_ONSET_UNITS,
-                                                     PAST_UNITS, VARY,
-                                                     calibration_jobs, fit_calibration,
-                                                     onset_jobs, unit_record, unit_signals,
-                                                     widen_needed)
+from servovalve_twin.prognostics.calibration import CALIBRATION_FILE, fit_calibration
+from servovalve_twin.prognostics.calibration_set import (CAL_SCENARIOS, LEVELS, EXTRA_UNITS, NOISE,
+                                                         ONSET_EXTRA, ONSET_SCENARIOS, ONSET_UNITS,
+                                                         ONSET_WINDOW, PAST_ONSET_UNITS, PAST_UNITS,
+                                                         VARY, calibration_jobs, onset_jobs,
+                                                         unit_record, unit_signals, widen_needed)
 from servovalve_twin.prognostics.diagnosis import diagnose
 
 FREE_SETS = (('CJ', 'M'), ())
@@ -37,7 +35,7 @@ SPREAD = 1.5
 
 
 def record(d, fault, truth):
-    """What the calibration needs of one diagnosis (calibration.unit_record)."""
+    """What the calibration needs of one diagnosis (calibration_set.unit_record)."""
     return unit_record(d, fault, truth)
 
 
@@ -58,7 +56,7 @@ def one(job):
 
 
 def one_onset(job):
-    """An onset unit (calibration.onset_jobs), diagnosed with the onset fitted."""
+    """An onset unit (calibration_set.onset_jobs), diagnosed with the onset fitted."""
     fault, q, scen, seed, at = job
     sig, truth, _ = unit_signals(fault, q, CAL_SCENARIOS[scen], seed, spread=SPREAD, onset=at)
     out = {}
@@ -105,7 +103,7 @@ def main() -> None:
     ap.add_argument('--records', default='out/calibration_records.json',
                     help='where the diagnosed units are kept (the expensive part)')
     ap.add_argument('--onset-units', type=int, default=ONSET_UNITS,
-                    help='onset units per fault (calibration.onset_jobs)')
+                    help='onset units per fault (calibration_set.onset_jobs)')
     ap.add_argument('--refit', action='store_true',
                     help='fit the calibration again from --records, diagnosing nothing')
     ap.add_argument('--reuse', action='store_true',

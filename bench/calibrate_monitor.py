@@ -29,7 +29,7 @@ def main() -> None:
     t0 = time.perf_counter()
     peaks = healthy_peaks(MONITOR_MODEL_NAMES, flights, args.units, args.seed, spread=SPREAD)
     out = dict(about=dict(plant='HD', flights=sorted(flights), units=args.units,
-                          seed=args.seed, spread=SPREAD, noise='documented (calibration.NOISE)',
+                          seed=args.seed, spread=SPREAD, noise='documented (calibration_set.NOISE)',
                           false_alarm_rate=FALSE_ALARM_RATE, law='Gumbel by moments',
                           runs=len(flights) * args.units),
                thresholds={m: calibrate_thresholds(peaks[m]) for m in MONITOR_MODEL_NAMES})

@@ -41,10 +41,10 @@ def parse_faults(text: str | None) -> tuple[str, ...]:
 
 
 def calibration_scenario(provenance) -> str | None:
-    """The calibration scenario (:data:`..prognostics.calibration.CAL_SCENARIOS`) a bag
+    """The calibration scenario (:data:`..prognostics.calibration_set.CAL_SCENARIOS`) a bag
     flew, if its recorded inputs are that scenario's, whatever it was called; else None."""
     from ..config import load_scenario
-    from ..prognostics.calibration import CAL_SCENARIOS
+    from ..prognostics.calibration_set import CAL_SCENARIOS
     if not provenance or provenance.scenario is None:
         return None
     flown = provenance.scenario_object()

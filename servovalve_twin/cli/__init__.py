@@ -14,14 +14,14 @@ import sys
 from typing import Sequence
 
 from ..errors import TwinError, one_line
-from . import bags, phm, physics, ros, sweep
+from . import bags, diagnosis, phm, physics, ros, sweep
 from .common import Command, Parser
 
 #: every command, in the order of ``--help``: a new command is a class and one line here
 COMMANDS: list[Command] = [
     physics.Simulate(), physics.Characteristic(), physics.Calibrate(), physics.Params(),
     physics.Report(), ros.Run(), bags.Compare(), ros.Replay(), sweep.Sweep(), ros.Play(),
-    phm.Evaluate(), phm.Diagnose(), phm.CalibrateDiagnosis(), phm.MonitorThresholds(),
+    phm.Evaluate(), diagnosis.Diagnose(), diagnosis.CalibrateDiagnosis(), phm.MonitorThresholds(),
     phm.Bit(), phm.Prognose(),
     physics.Fmu(), physics.Faults(), bags.Reindex(),
 ]

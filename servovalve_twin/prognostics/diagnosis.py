@@ -346,7 +346,7 @@ def _second_fault(problem: Problem, best: Candidate, singles: Mapping[str, np.nd
     fitted as a pair with the verdict's, started from the two singles' optima; the best pair,
     if it beats the verdict by :data:`SECOND_FAULT_EVIDENCE` with both faults of at least the
     mild size, else None."""
-    from .calibration import from_g, severity_at, to_g
+    from .calibration_set import from_g, severity_at, to_g
     a = best.faults[0]
     spec = FAULTS[a]
     r = problem.residuals(best.fitted or None)

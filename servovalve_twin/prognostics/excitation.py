@@ -50,7 +50,8 @@ from ..physics.faults import FAULTS, combine
 from ..physics.params import DEFAULTS, EhaParams
 from ..physics.scenario import Scenario, as_scenario
 from ..physics.simulate import simulate
-from .calibration import LEVELS, NOISE, VARY, alpha_of, from_g, severity_at, to_g
+from .calibration import alpha_of
+from .calibration_set import LEVELS, NOISE, VARY, from_g, severity_at, to_g
 from .conformal import z_of
 from .diagnosis import DETECTABLE, DIAGNOSABLE
 from .fitting import RESIDUAL_SCALE, SIGNALS, effective_n

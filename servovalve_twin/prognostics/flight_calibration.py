@@ -10,7 +10,7 @@ caches the result under a key of everything it depends on.
 
 What is flown (:func:`jobs`): seeded HD units of the design, nuisance M, CJ, FDJ within 1.5 x
 the documented spread and sensor noise 0.5-2 x the documented level (as the packaged
-calibration's, :func:`.calibration.unit_signals`): ``units`` per catalog fault a simplified
+calibration's, :func:`.calibration_set.unit_signals`): ``units`` per catalog fault a simplified
 model can see and per level (0.3, 0.6, 1 of the way to its alarm value), and ``2 * units *
 len(LEVELS)`` healthy ones. Each unit's seed comes from (seed, fault, level, replicate) alone,
 so that adding a fault or units adds those units only.
@@ -54,8 +54,8 @@ from ..errors import TwinError
 from ..outputs import output_file
 from ..physics.faults import FAULTS
 from ..physics.params import EhaParams
-from .calibration import (LEVELS, fit_calibration, severity_at, to_g, unit_record,
-                          unit_signals)
+from .calibration import fit_calibration
+from .calibration_set import LEVELS, severity_at, to_g, unit_record, unit_signals
 from .conformal import ALPHA, quantile
 from .parallel import map_unordered
 from .rules import fraction

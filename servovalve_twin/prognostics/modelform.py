@@ -14,20 +14,9 @@ import numpy as np
 from ..errors import TwinError
 from ..physics.faults import FAULTS
 from ..physics.simulate import simulate
-from .calibration import (
-    POOLED,
-    alpha_of,
-    bias_at,
-    fault_calibration,
-    from_g,
-    gof_p_value,
-    gof_reference,
-    past_by,
-    past_correction,
-    resolve_entry,
-    spread_of,
-    to_g,
-)
+from .calibration import (POOLED, alpha_of, bias_at, fault_calibration, gof_p_value, gof_reference,
+                          past_correction, resolve_entry, spread_of)
+from .calibration_set import from_g, past_by, to_g
 from .conformal import enough, units_needed, z_of
 from .fitting import SIGNALS, Problem
 from .rules import ONSET_ENTRY

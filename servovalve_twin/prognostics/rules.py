@@ -20,7 +20,7 @@ DETECTABLE = 0.2
 #: how much lower (better) a pair's score must be than each of its two single faults' to be
 #: reported: "very strong" evidence on Kass and Raftery's BIC scale
 PAIR_EVIDENCE = 10.0
-#: the calibration entry of answers refitted at an onset (:data:`.calibration.ONSET_UNITS`),
+#: the calibration entry of answers refitted at an onset (:data:`.calibration_set.ONSET_UNITS`),
 #: pooled over the onset flights; ``onset:<scenario>`` is one flight's own
 ONSET_ENTRY = 'onset'
 

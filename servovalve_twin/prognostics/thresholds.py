@@ -66,7 +66,7 @@ def _measured_unit(flown, design_scenario, rng: np.random.Generator, spread: flo
     documented spread, the scenario's parameters of ``design_scenario`` on it, 1 ms ECU,
     measured with the documented noise -- rng consumed in that order."""
     from ..physics.params import DEFAULTS
-    from .calibration import NOISE, VARY
+    from .calibration_set import NOISE, VARY
     from .sweep import draw_nuisance, measured
     unit = DEFAULTS.replace(**draw_nuisance(rng, {k: v * spread for k, v in VARY.items()},
                                             DEFAULTS))

@@ -113,7 +113,7 @@ def test_report_writes_a_new_directory_and_edits_nothing(tmp_path, monkeypatch, 
 def test_the_verdict_line_states_the_onset_and_its_confidence():
     """`diagnose`'s line: the severity with the verdict's confidence, and the onset with its
     own (a pinned onset as a point and interval, an unpinned one as the span it began in)."""
-    from servovalve_twin.cli.phm import _verdict_line
+    from servovalve_twin.cli.diagnosis import _verdict_line
     from servovalve_twin.prognostics.verdict import Candidate, Diagnosis
     cand = Candidate('leakage_growth', 1.8, (1.7, 1.9), 0.0, 1.0, {}, {})
     d = Diagnosis(model='SQ', window=(0.0, 1.0), candidates=[cand], n_eff=100.0,
@@ -131,7 +131,7 @@ def test_the_diagnosis_line_names_rivals_and_a_poor_fit():
     """diagnose's one line: a 10 x leak read as a supply loss with RMS 30 and two rivals in
     the JSON showed neither on the line."""
     from types import SimpleNamespace
-    from servovalve_twin.cli.phm import _verdict_line
+    from servovalve_twin.cli.diagnosis import _verdict_line
     best = SimpleNamespace(fault='supply_loss', faults=('supply_loss',), severity=0.7492,
                            severities=(0.7492,), intervals=((0.7333, 0.7652),))
     d = SimpleNamespace(best=best, verdict=None, confidence=0.95, onset=None,

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from servovalve_twin.physics.faults import FAULTS
-from servovalve_twin.prognostics import calibration
+from servovalve_twin.prognostics import calibration, calibration_set
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics.calibration import (LEVELS, calibration_for, fit_calibration,
-                                                     from_g, gof_p_value, severity_at, to_g,
-                                                     unit_signals)
+from servovalve_twin.prognostics.calibration import calibration_for, fit_calibration, gof_p_value
+from servovalve_twin.prognostics.calibration_set import (LEVELS, from_g, severity_at, to_g,
+                                                         unit_signals)
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, UNEXPLAINED, diagnose
 
 #: the two-sided 90 % normal quantile, by hand (tables): not the code's own
@@ -95,7 +95,7 @@ def test_the_packaged_calibration_covers_every_hypothesis():
         assert not missing, missing
         # past the alarm value: every fault whose catalog goes past it
         assert sorted(cal['past']) == sorted(
-            f for f in DIAGNOSABLE if calibration.end_level(f) > 1.0)
+            f for f in DIAGNOSABLE if calibration_set.end_level(f) > 1.0)
         assert len(cal['past_rms']) > len(cal['rms'])
 
 
@@ -252,16 +252,16 @@ def test_a_fit_that_does_not_pin_its_severity_widens_its_own_interval_not_every_
 
 
 def test_the_extra_units_leave_the_first_ones_and_spread_between_the_levels():
-    jobs = calibration.calibration_jobs(2, 7)
+    jobs = calibration_set.calibration_jobs(2, 7)
     per_round = 1 + len(DIAGNOSABLE) * len(LEVELS)
-    first = 2 * len(calibration.CAL_SCENARIOS) * per_round
-    extra_end = first + sum(calibration.EXTRA_UNITS.values()) * per_round
+    first = 2 * len(calibration_set.CAL_SCENARIOS) * per_round
+    extra_end = first + sum(calibration_set.EXTRA_UNITS.values()) * per_round
     assert all(j[1] <= 1.0 for j in jobs[:extra_end]) and jobs[extra_end][1] > 1.0
     # the first units: the levels, seeds in sequence, whatever the extra ones are
     assert [j[3] for j in jobs] == [7 * 1_000_003 + k for k in range(len(jobs))]
     assert {j[1] for j in jobs[:first] if j[0]} == set(LEVELS)
     extra = [j for j in jobs[first:extra_end] if j[0]]
-    assert all(calibration.EXTRA_RANGE[j[2]][0] <= j[1] <= calibration.EXTRA_RANGE[j[2]][1]
+    assert all(calibration_set.EXTRA_RANGE[j[2]][0] <= j[1] <= calibration_set.EXTRA_RANGE[j[2]][1]
                for j in extra)
     assert len({j[1] for j in extra}) > len(extra) // 2
     # the paper flight's extra units reach below the verdict floor
@@ -274,17 +274,18 @@ def test_units_past_the_alarm_value_come_last_and_reach_the_catalogs_end():
     bias ends at its alarm value); the units past it are appended to both sets (the units
     before keep their seeds), each fault whose catalog goes past its alarm value on every
     calibration flight (on every onset flight), between the alarm value and the end."""
-    assert calibration.end_level('leakage_growth') == pytest.approx(2.0)
-    assert calibration.end_level('supply_loss') == pytest.approx(3.0)
-    assert calibration.end_level('null_bias') == pytest.approx(1.0)
-    assert calibration.end_level('static_friction') == pytest.approx(math.log(50) / math.log(20))
-    beyond = [f for f in DIAGNOSABLE if calibration.end_level(f) > 1.0]
+    assert calibration_set.end_level('leakage_growth') == pytest.approx(2.0)
+    assert calibration_set.end_level('supply_loss') == pytest.approx(3.0)
+    assert calibration_set.end_level('null_bias') == pytest.approx(1.0)
+    assert calibration_set.end_level('static_friction') == pytest.approx(
+        math.log(50) / math.log(20))
+    beyond = [f for f in DIAGNOSABLE if calibration_set.end_level(f) > 1.0]
     assert 'null_bias' not in beyond and len(beyond) == len(DIAGNOSABLE) - 1
     for jobs, flights, units in (
-            (calibration.calibration_jobs(2, 7), calibration.CAL_SCENARIOS,
-             calibration.PAST_UNITS),
-            (calibration.onset_jobs(2, 7), calibration.ONSET_SCENARIOS,
-             calibration.PAST_ONSET_UNITS)):
+            (calibration_set.calibration_jobs(2, 7), calibration_set.CAL_SCENARIOS,
+             calibration_set.PAST_UNITS),
+            (calibration_set.onset_jobs(2, 7), calibration_set.ONSET_SCENARIOS,
+             calibration_set.PAST_ONSET_UNITS)):
         n = units * len(flights) * len(beyond)
         past, before = jobs[-n:], jobs[:-n]
         assert all(j[1] <= 1.0 for j in before)
@@ -292,7 +293,7 @@ def test_units_past_the_alarm_value_come_last_and_reach_the_catalogs_end():
         for f in beyond:
             qs = [j[1] for j in past if j[0] == f]
             assert len(qs) == units * len(flights)
-            assert all(1.0 <= q < calibration.end_level(f) for q in qs)
+            assert all(1.0 <= q < calibration_set.end_level(f) for q in qs)
             assert all(FAULTS[f].lo <= severity_at(f, q) <= FAULTS[f].hi for q in qs)
 
 
@@ -449,10 +450,10 @@ def test_the_factor_an_onset_interval_needs_against_a_hand_count():
     10)."""
     profile = dict(costs={'0.1': 200.0, '0.2': 105.0, '0.3': 100.0, '0.4': 115.0,
                           '0.5': 300.0}, rss=100.0, width=0.1)
-    assert calibration.widen_needed(profile, (0.0, 1.0), 0.35) == 0.0
-    assert calibration.widen_needed(profile, (0.0, 1.0), 0.15) == pytest.approx(0.5, abs=1e-9)
-    assert calibration.widen_needed(profile, (0.0, 1.0), 0.45) == pytest.approx(1.5, abs=1e-9)
-    assert calibration.widen_needed(profile, (0.0, 1.0), 0.05) == pytest.approx(10.0, abs=1e-8)
+    assert calibration_set.widen_needed(profile, (0.0, 1.0), 0.35) == 0.0
+    assert calibration_set.widen_needed(profile, (0.0, 1.0), 0.15) == pytest.approx(0.5, abs=1e-9)
+    assert calibration_set.widen_needed(profile, (0.0, 1.0), 0.45) == pytest.approx(1.5, abs=1e-9)
+    assert calibration_set.widen_needed(profile, (0.0, 1.0), 0.05) == pytest.approx(10.0, abs=1e-8)
 
 
 def test_onset_units_draw_severities_and_onsets_of_their_own():
@@ -460,27 +461,27 @@ def test_onset_units_draw_severities_and_onsets_of_their_own():
     test), severities between the levels, onsets inside the window of each flight (the
     built-in test is 2 s), seeds apart from the calibration set's; then those past the alarm
     value (their own test)."""
-    everyone = calibration.onset_jobs(3, 7)
+    everyone = calibration_set.onset_jobs(3, 7)
     jobs = [j for j in everyone if j[1] <= 1.0]
     assert everyone[:len(jobs)] == jobs
-    assert len(jobs) == sum(3 + calibration.ONSET_EXTRA.get(scen, 0)
-                            for scen in calibration.ONSET_SCENARIOS) * len(DIAGNOSABLE)
+    assert len(jobs) == sum(3 + calibration_set.ONSET_EXTRA.get(scen, 0)
+                            for scen in calibration_set.ONSET_SCENARIOS) * len(DIAGNOSABLE)
     assert [j[0] for j in jobs[:len(DIAGNOSABLE)]] == list(DIAGNOSABLE)
-    lo, hi = calibration.ONSET_WINDOW
-    for scen in calibration.ONSET_SCENARIOS:
+    lo, hi = calibration_set.ONSET_WINDOW
+    for scen in calibration_set.ONSET_SCENARIOS:
         some = [j for j in jobs if j[2] == scen]
         duration = 2.0 if scen == 'bit' else 1.0
-        assert len(some) == (3 + calibration.ONSET_EXTRA.get(scen, 0)) * len(DIAGNOSABLE)
+        assert len(some) == (3 + calibration_set.ONSET_EXTRA.get(scen, 0)) * len(DIAGNOSABLE)
         assert all(LEVELS[0] <= j[1] <= 1.0 and lo * duration <= j[4] <= hi * duration
                    for j in some)
     # the extra units come after the first ones, whose seeds do not depend on them
     assert [j[3] for j in everyone] == [7 * 1_000_003 + 500_000 + k
                                         for k in range(len(everyone))]
     assert [j[2] for j in jobs] == sorted((j[2] for j in jobs),
-                                          key=calibration.ONSET_SCENARIOS.index)
+                                          key=calibration_set.ONSET_SCENARIOS.index)
     assert max(j[4] for j in jobs) > 1.0                   # the built-in test's own window
     assert len({j[4] for j in jobs}) == len(jobs)
-    seeds = {j[3] for j in calibration.calibration_jobs(4, 7)}
+    seeds = {j[3] for j in calibration_set.calibration_jobs(4, 7)}
     assert not seeds & {j[3] for j in everyone}
     assert len({j[3] for j in everyone}) == len(everyone)
 

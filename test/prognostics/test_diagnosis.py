@@ -11,7 +11,7 @@ from servovalve_twin.cli import main
 from servovalve_twin.errors import TwinError
 from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics import calibration
+from servovalve_twin.prognostics import calibration, calibration_set
 from servovalve_twin.prognostics.diagnosis import DIAGNOSABLE, UNEXPLAINED, diagnose
 from servovalve_twin.prognostics.prognosis import prognose
 from servovalve_twin.runs import simulate
@@ -182,7 +182,7 @@ def test_a_flight_the_model_follows_poorly_raises_its_own_limit_not_an_alarm():
     from servovalve_twin.prognostics.fitting import RESIDUAL_SCALE
     from servovalve_twin.prognostics.thresholds import chirp
     flight = chirp(2.0, 30.0, 0.005, 2.0, 6000.0)
-    sig, _, _ = calibration.unit_signals(None, 0.0, flight, 11, spread=1.5)
+    sig, _, _ = calibration_set.unit_signals(None, 0.0, flight, 11, spread=1.5)
     hd, sq = (simulate(m, flight, ecu_period=1e-3) for m in ('HD', 'SQ'))
     r = np.concatenate([(sq[k] - hd[k]) / RESIDUAL_SCALE[k] for k in ('xj', 'dxj', 'p12')])
     own = float(np.sqrt(np.mean(r * r)))
@@ -192,7 +192,7 @@ def test_a_flight_the_model_follows_poorly_raises_its_own_limit_not_an_alarm():
     assert d.fit_rms > UNEXPLAINED_FACTOR * float(np.quantile(d.calibration['rms'], 0.98))
     assert d.verdict != UNEXPLAINED and d.best.fault == 'healthy'
     assert any('beyond the calibration flights' in w for w in d.warnings)
-    paper, _, _ = calibration.unit_signals(None, 0.0, 'paper', 11, spread=1.5)
+    paper, _, _ = calibration_set.unit_signals(None, 0.0, 'paper', 11, spread=1.5)
     p = diagnose(paper, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'))
     assert p.fit_limit == pytest.approx(UNEXPLAINED_FACTOR * float(np.quantile(
         p.calibration['rms'], 0.98))) and p.flight_model_form_rms < 1.5
@@ -278,7 +278,7 @@ def test_a_single_hd_fault_passes_the_second_look():
                  com=[[0.0, 0.0], [0.05, -0.025], [0.3, 0.02], [0.6, -0.005]],
                  fr=[[0.0, 0.0], [0.15, -2500.0], [0.45, 3500.0], [0.75, 1000.0]],
                  psr=[[0.0, 2.0e7], [0.5, 1.8e7]])
-    sig, _, _ = calibration.unit_signals('leakage_growth', 0.6, steps, 500, spread=1.5)
+    sig, _, _ = calibration_set.unit_signals('leakage_growth', 0.6, steps, 500, spread=1.5)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'))
     assert d.verdict != UNEXPLAINED and d.best.fault == 'leakage_growth'
 
@@ -468,7 +468,7 @@ def test_a_fault_that_starts_mid_flight_is_located(fault, q, at):
     """An HD unit whose fault begins mid-flight: fitted as present from the start it fits
     like no right hypothesis (unexplained); with the change point the onset comes back within
     50 ms, its interval holds it, and the severity is within 15 %."""
-    sig, truth, _ = calibration.unit_signals(fault, q, 'paper', 31, onset=at, noise_gain=1.0)
+    sig, truth, _ = calibration_set.unit_signals(fault, q, 'paper', 31, onset=at, noise_gain=1.0)
     kw = dict(control_period=1e-3, model='SQ', free=('M', 'CJ'))
     assert diagnose(sig, DEFAULTS, **kw).verdict == UNEXPLAINED
     d = diagnose(sig, DEFAULTS, onset=True, **kw)
@@ -486,7 +486,7 @@ def test_an_onset_in_a_valley_narrower_than_the_grid_is_found():
     wide at 0.30 s and a shallower minimum at 0.44 s; the coarse grid alone refined the wrong
     one (0.436 s, its interval [0.415, 0.478] excluding the truth: measured). The change
     point of the from-start fits brings the search to the valley."""
-    sig, truth, _ = calibration.unit_signals('null_bias', 0.6, 'paper', 16666714, spread=1.5,
+    sig, truth, _ = calibration_set.unit_signals('null_bias', 0.6, 'paper', 16666714, spread=1.5,
                                              onset=0.3)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='paper')
@@ -501,7 +501,7 @@ def test_an_onset_a_few_ms_wide_found_by_another_hypothesis_is_tried_by_all():
     and not at all at 0.595 or 0.61 s), so the grid's 0.596 s missed it and a leakage from
     0.599 s became the verdict (measured). The instant the best hypothesis finds is now tried
     by every one: the supply loss wins there."""
-    sig, truth, _ = calibration.unit_signals('supply_loss', 0.6, 'paper', 16666733,
+    sig, truth, _ = calibration_set.unit_signals('supply_loss', 0.6, 'paper', 16666733,
                                              spread=1.5, onset=0.6)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='paper')
@@ -520,7 +520,7 @@ def test_the_nuisance_is_refitted_at_the_onset():
     the onset fit left 15 x the residual of a right fit and the run came back `unexplained`
     (measured); M and CJ refitted with the severity at the onset, it is named, sized within
     5 %, its onset within 5 ms."""
-    sig, truth, _ = calibration.unit_signals('torque_motor_gain_loss', 1.0, 'paper', 22222267,
+    sig, truth, _ = calibration_set.unit_signals('torque_motor_gain_loss', 1.0, 'paper', 22222267,
                                              spread=1.5, onset=0.3)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='paper')
@@ -535,7 +535,7 @@ def test_an_onset_the_flight_cannot_place_is_stated_as_such():
     command: the run cannot tell when it began between the supply's recovery and that
     command. The onset comes back `identifiable: false` with an interval wider than 100 ms
     that holds the truth, and a warning says so; the severity is still sized."""
-    sig, truth, _ = calibration.unit_signals('first_stage_flow_loss', 0.6, 'paper', 16666719,
+    sig, truth, _ = calibration_set.unit_signals('first_stage_flow_loss', 0.6, 'paper', 16666719,
                                              spread=1.5, onset=0.6)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='paper')
@@ -570,7 +570,7 @@ def test_close_onset_hypotheses_are_each_refitted_with_the_nuisance():
     gain loss was named 0.19 with a tight interval (measured). Each close hypothesis refitted
     with the nuisance at its onset, the supply loss wins (5.4e3 against 7.4e3) and is sized
     within 5 %."""
-    sig, truth, _ = calibration.unit_signals('supply_loss', 1.0, 'bit', 16666701, spread=1.5,
+    sig, truth, _ = calibration_set.unit_signals('supply_loss', 1.0, 'bit', 16666701, spread=1.5,
                                              onset=1.2)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='bit')
@@ -627,7 +627,7 @@ def test_an_onset_cost_is_profiled_over_the_free_nuisance():
     nuisance at each instant the cost is as low anywhere on the slew (CJ 0.67): the onset is
     not identifiable there, and the interval -- the noise's alone, no calibration -- says so
     with the truth inside. The costs kept are the lower of held and refitted."""
-    sig, truth, _ = calibration.unit_signals('null_bias', 1.0, 'bit', 22222271, spread=1.5,
+    sig, truth, _ = calibration_set.unit_signals('null_bias', 1.0, 'bit', 22222271, spread=1.5,
                                              onset=0.6)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  model_form=False)
@@ -654,7 +654,7 @@ def test_an_onset_interval_is_widened_by_the_calibrated_factor():
     from servovalve_twin.prognostics.calibration import calibration_for, onset_widen
     assert onset_widen(calibration_for('SQ', ()), 'onset:bit') > 1.85
     assert onset_widen(calibration_for('SQ', ('CJ', 'M')), 'onset:bit') < 1.0
-    sig, truth, _ = calibration.unit_signals('null_bias', 0.6107, 'bit', 7500173, spread=1.5,
+    sig, truth, _ = calibration_set.unit_signals('null_bias', 0.6107, 'bit', 7500173, spread=1.5,
                                              onset=0.566)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', onset=True, scenario='bit')
     assert d.best.fault == 'null_bias' and d.onset['confidence'] == 0.9
@@ -669,7 +669,7 @@ def test_a_fault_that_fits_as_well_from_the_start_is_not_called_present_from_it(
     fits as well from any instant before it and no onset beats the from-start fit. The answer
     must not read "present from the start" (no onset) but "began between the start and
     ~0.36 s", not identifiable, with the truth inside."""
-    sig, _, _ = calibration.unit_signals('static_friction', 1.0, 'paper', 16666704,
+    sig, _, _ = calibration_set.unit_signals('static_friction', 1.0, 'paper', 16666704,
                                          spread=1.5, onset=0.3)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='paper')
@@ -690,7 +690,7 @@ def test_an_answer_past_the_alarm_value_is_calibrated_there(monkeypatch):
     the answer had to say it was extrapolated (measured). A leak fitted short of its alarm
     value (10 x, read 9.57) is answered alike either way."""
     def answer(fault, q):
-        sig, truth, _ = calibration.unit_signals(fault, q, 'paper', 5, spread=1.5)
+        sig, truth, _ = calibration_set.unit_signals(fault, q, 'paper', 5, spread=1.5)
         d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'),
                      scenario='paper')
         assert d.best.fault == fault and not d.verdict
@@ -719,7 +719,7 @@ def test_a_hypothesis_that_fits_as_well_from_its_onset_is_named_beside_the_verdi
     from the start, which the verdict names (RSS 2128); the truth fits as well (2112, with
     M and CJ refitted at its onset; 8.6 x worse with them held where its fit from the start
     bent them: measured). The answer must say the run cannot tell them apart."""
-    sig, truth, _ = calibration.unit_signals('dynamic_friction', 1.15, 'paper', 27777810,
+    sig, truth, _ = calibration_set.unit_signals('dynamic_friction', 1.15, 'paper', 27777810,
                                              spread=1.5, onset=0.3)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='paper')
@@ -735,7 +735,7 @@ def test_a_fault_whose_onset_is_not_identifiable_is_not_sized_by_the_flight_befo
     in [9.1, 29.5], the truth outside (measured). From 1.22 s, the last instant tried before
     1.46 s, the severity fits within the noise's limit from 5.2 to 42 x (measured), and the
     interval must say so."""
-    sig, truth, _ = calibration.unit_signals('static_friction', 1.15, 'bit', 22222299,
+    sig, truth, _ = calibration_set.unit_signals('static_friction', 1.15, 'bit', 22222299,
                                              spread=1.5, onset=1.2)
     assert truth == pytest.approx(31.35, abs=0.01)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
@@ -751,7 +751,7 @@ def test_an_onset_of_a_fault_too_small_to_report_is_no_verdict():
     """A static friction of 6 x from 0.6 s on the paper's flight (below its limit there): the
     best change point is a dynamic friction of 1.5 x from a wrong instant, below the verdict
     floor -- it must not become a confident name, as it did."""
-    sig, _, _ = calibration.unit_signals('static_friction', 0.6, 'paper', 16666703, spread=1.5,
+    sig, _, _ = calibration_set.unit_signals('static_friction', 0.6, 'paper', 16666703, spread=1.5,
                                          onset=0.6)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'), onset=True,
                  scenario='paper')
@@ -776,17 +776,17 @@ def test_an_onset_is_sized_for_the_floor_after_its_correction():
 
 @pytest.mark.slow
 def test_no_onset_is_reported_for_a_fault_present_from_the_start():
-    sig, truth, _ = calibration.unit_signals('leakage_growth', 1.0, 'paper', 32, noise_gain=1.0)
+    sig, truth, _ = calibration_set.unit_signals('leakage_growth', 1.0, 'paper', 32, noise_gain=1.0)
     d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('M', 'CJ'),
                  onset=True)
     assert d.best.fault == 'leakage_growth' and d.onset is None
 
 
 def test_an_hd_unit_read_by_noisy_sensors_in_its_loop_is_diagnosed():
-    """The unit's noise from the sensor model at the documented levels (calibration.NOISE),
+    """The unit's noise from the sensor model at the documented levels (calibration_set.NOISE),
     its ECU closing the loop on the noisy XJ: the leak is named, sized within 10 % and its
     interval holds the truth -- the diagnosis does not need hand-made noisy copies."""
-    from servovalve_twin.prognostics.calibration import NOISE
+    from servovalve_twin.prognostics.calibration_set import NOISE
     sensors = {'seed': 21, **{s: {'noise': v} for s, v in NOISE.items()}}
     run = simulate('HD', dict(_faulty('leakage_growth', 10.0), sensors=sensors),
                    ecu_period=1e-3)
@@ -824,7 +824,7 @@ def test_a_fleet_fit_is_the_fit_run_by_run(monkeypatch):
     ran the wrong unit's parameters, or a Jacobian taken at other points, would differ)."""
     import dataclasses
     from servovalve_twin.physics import valves
-    sig, _, _ = calibration.unit_signals('leakage_growth', 0.6, 'paper', 41, spread=1.5)
+    sig, _, _ = calibration_set.unit_signals('leakage_growth', 0.6, 'paper', 41, spread=1.5)
 
     def answer():
         d = diagnose(sig, DEFAULTS, control_period=1e-3, model='SQ', free=('CJ', 'M'),
@@ -873,7 +873,7 @@ def test_a_best_fit_below_the_floor_is_healthy_not_the_next_fault():
 def test_an_interval_on_too_few_calibration_units_says_it_is_not_guaranteed():
     """A fault's spread from 8 units (a 90 % conformal bound needs 9) is used, and the answer
     says so; from 9 it says nothing."""
-    sig, truth, _ = calibration.unit_signals('leakage_growth', 1.0, 'paper', 11, spread=1.0)
+    sig, truth, _ = calibration_set.unit_signals('leakage_growth', 1.0, 'paper', 11, spread=1.0)
     packaged = calibration.calibration_for('SQ', ())
 
     def warned(pinned):

@@ -12,7 +12,7 @@ from servovalve_twin.config import load_scenario
 from servovalve_twin.physics.faults import FAULTS, combine
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.physics.scenario import scenario_from_dict
-from servovalve_twin.prognostics.calibration import NOISE, severity_at, to_g
+from servovalve_twin.prognostics.calibration_set import NOISE, severity_at, to_g
 from servovalve_twin.prognostics.diagnosis import DETECTABLE, diagnose
 from servovalve_twin.prognostics.fitting import RESIDUAL_SCALE
 from servovalve_twin.prognostics.excitation import (EVIDENCE, Excitation, RigLimits,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from servovalve_twin.physics.params import DEFAULTS
-from servovalve_twin.prognostics import calibration
+from servovalve_twin.prognostics import calibration_set
 from servovalve_twin.prognostics.fitting import Problem, fit, start_grid
 
 
@@ -16,7 +16,7 @@ def test_a_fit_on_a_flat_stretch_finds_the_valley_between_the_start_grid_points(
     the start grid's points 3.68 and 7.07. The finite differences see nothing at a grid point
     on the flat stretch; the fit must still end in the valley: no worse than the best of 161
     severities tried one by one (the nuisance at the fit's), far better than any grid point."""
-    sig, truth, _ = calibration.unit_signals('static_friction', 0.6, 'bit', 8101, spread=1.5)
+    sig, truth, _ = calibration_set.unit_signals('static_friction', 0.6, 'bit', 8101, spread=1.5)
     problem = Problem(sig, DEFAULTS, 'SQ', 1e-3, None)
     x, res, _ = fit(problem, ['static_friction'], ['M', 'CJ'])
     rss = float(res @ res)
@@ -38,7 +38,7 @@ def test_a_whole_run_is_modelled_from_rest_not_from_its_first_noisy_sample():
     state plus the sensors' noise, and a model started there made a transient the actuator
     never had (on a flight that excites nothing, a healthy unit was called a 100 x leak). A
     fit from a later instant, or of rows that begin mid-run, starts at the recorded state."""
-    sig, _, _ = calibration.unit_signals(None, 0.0, 'defaults', 4242, spread=1.5)
+    sig, _, _ = calibration_set.unit_signals(None, 0.0, 'defaults', 4242, spread=1.5)
     assert sig['xj'][0] != 0.0 and sig['dxj'][0] != 0.0          # noise at the first row
     problem = Problem(sig, DEFAULTS, 'SQ', 1e-3, None)
     run = problem.run(problem.params((), [], {}))
@@ -57,7 +57,7 @@ def test_a_fit_that_stalls_on_a_rough_cost_is_solved_again_to_its_valley():
     friction's switching) that the solver's trust region shrank to nothing after two
     Jacobians, at 1.78 x with CJ still at its start, RSS 2660. The fit must reach the valley:
     no worse than the best of a brute-force grid over the severity and CJ (M at the fit's)."""
-    sig, truth, _ = calibration.unit_signals('dynamic_friction', 0.22, 'paper', 4444477,
+    sig, truth, _ = calibration_set.unit_signals('dynamic_friction', 0.22, 'paper', 4444477,
                                              spread=1.5)
     problem = Problem(sig, DEFAULTS, 'SQ', 1e-3, None)
     x, res, _ = fit(problem, ['dynamic_friction'], ['CJ', 'M'])

@@ -15,7 +15,8 @@ from servovalve_twin.physics.faults import FAULTS
 from servovalve_twin.physics.params import DEFAULTS
 from servovalve_twin.prognostics import flight_calibration as fc
 from servovalve_twin.prognostics import rules
-from servovalve_twin.prognostics.calibration import calibration_for, to_g
+from servovalve_twin.prognostics.calibration import calibration_for
+from servovalve_twin.prognostics.calibration_set import to_g
 
 FLIGHT = {'duration': 0.3, 'com': [[0.0, 0.0], [0.05, 0.02]], 'fr': [[0.0, 0.0], [0.1, 3000.0]],
           'psr': [[0.0, 2.0e7]]}

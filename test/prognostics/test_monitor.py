@@ -115,7 +115,7 @@ def test_no_false_alarm_on_unseen_flights_and_a_3x_leak_is_seen():
     calibration never flew (another chirp, other random steps under load, noise 2 x): the
     default monitor stays below ERROR; a 3 x leakage on the paper's flight reaches it."""
     from servovalve_twin.config import load_scenario
-    from servovalve_twin.prognostics.calibration import NOISE, VARY
+    from servovalve_twin.prognostics.calibration_set import NOISE, VARY
     from servovalve_twin.prognostics.monitor import ERROR, monitor_run
     from servovalve_twin.prognostics.thresholds import chirp, random_steps
     from servovalve_twin.prognostics.sweep import draw_nuisance, measured
