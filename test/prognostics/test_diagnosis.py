@@ -703,8 +703,10 @@ def test_an_answer_past_the_alarm_value_is_calibrated_there(monkeypatch):
         truth, (lo, hi), warned = answer(fault, q)
         assert lo <= truth <= hi and not warned
     leak = answer('leakage_growth', 1.0)
+    from servovalve_twin.prognostics import diagnosis as diagnosis_module
     full = calibration.calibration_for
-    monkeypatch.setattr(calibration, 'calibration_for', lambda model, free: {
+    # (the packaged calibration as diagnose looks it up)
+    monkeypatch.setattr(diagnosis_module, 'calibration_for', lambda model, free: {
         k: v for k, v in full(model, free).items() if k not in ('past', 'past_rms')})
     for fault, q in past:
         truth, (lo, hi), warned = answer(fault, q)
