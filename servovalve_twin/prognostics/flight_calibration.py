@@ -57,6 +57,7 @@ from ..physics.params import EhaParams
 from .calibration import fit_calibration
 from .calibration_set import LEVELS, severity_at, to_g, unit_record, unit_signals
 from .conformal import ALPHA, quantile
+from .modelform import reported_severity
 from .parallel import map_unordered
 from .rules import fraction
 
@@ -184,10 +185,9 @@ def stated_sizes(records: Iterable[Mapping[str, Any]], cal: Mapping[str, Any]
                  ) -> list[dict[str, Any]]:
     """``records`` with each ``best`` (a fault and its fitted severity) as the fault and the
     fraction of the way to its alarm value of the size ``diagnose`` would state with ``cal``
-    (:func:`.diagnosis.reported_severity`, the flight's own entry): the floor and the verdict
+    (:func:`.modelform.reported_severity`, the flight's own entry): the floor and the verdict
     then test one statistic. (The floor read fitted sizes while the verdict stated corrected
     ones: 2 of 104 healthy units of the bench were named a gain loss stated at 0.0.)"""
-    from .diagnosis import reported_severity
     out = []
     for r in records:
         best = r.get('best')
