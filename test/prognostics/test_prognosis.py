@@ -222,7 +222,7 @@ def test_the_trend_test_is_at_two_standard_errors():
 def test_the_sigma_floors():
     """REL_SIGMA_FLOOR 3 % of the distance from healthy plus ABS_SIGMA_FLOOR 1 % of the span
     to the alarm value, against a hand computation."""
-    from servovalve_twin.prognostics.prognosis import _sigmas
+    from servovalve_twin.prognostics.trends import _sigmas
     got = _sigmas(np.array([3.0, 1.0]), np.array([0.0, 0.5]), 'leakage_growth')
     assert got == pytest.approx([0.03 * 2.0 + 0.01 * 9.0, 0.5])
 
@@ -230,7 +230,7 @@ def test_the_sigma_floors():
 def test_a_flight_read_far_off_is_left_out():
     """REJECT_Z = 5 robust sd: one flight read 40 sd off an exact line is left out (the slope
     exact); HUBER_K = 2.5: one read 4 sd off is kept, down-weighted (the slope moves)."""
-    from servovalve_twin.prognostics.prognosis import fit_trends
+    from servovalve_twin.prognostics.trends import fit_trends
     n = np.arange(12.0)
     s = 1.0 + 0.5 * n + np.tile([0.02, -0.02], 6)
     sig = np.full(12, 0.1)
@@ -248,7 +248,7 @@ def test_a_flight_read_far_off_is_left_out():
 def test_the_law_prior():
     """LAW_ODDS 3 to 1 for each model of the fault's law (a leak accelerates, a friction grows
     linearly), against a hand computation over the six models."""
-    from servovalve_twin.prognostics.prognosis import law_prior
+    from servovalve_twin.prognostics.trends import law_prior
     leak, friction = law_prior('leakage_growth'), law_prior('dynamic_friction')
     assert leak['offset exponential'] == pytest.approx(3 / 12)
     assert leak['linear'] == pytest.approx(1 / 12)
@@ -259,7 +259,7 @@ def test_the_law_prior():
 def test_the_quadratic_crosses_where_the_closed_form_says():
     """s = 1 + 0.5 x + 0.1 x^2 (x from the last flight) reaches 10 at x = (-0.5 + sqrt(0.25 +
     3.6)) / 0.2; a falling one never; one already past is past."""
-    from servovalve_twin.prognostics.prognosis import Trend
+    from servovalve_twin.prognostics.trends import Trend
     t = Trend('quadratic', np.zeros(3), np.eye(3), 0.0, n_ref=7.0)
     coef = np.array([[1.0, 0.5, 0.1], [1.0, -0.5, -0.1], [11.0, 0.5, 0.1], [1.0, 2.0, -0.05]])
     got = t.crossing(10.0, coef, True)
