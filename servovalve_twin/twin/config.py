@@ -105,7 +105,23 @@ class TwinConfig:
     ``run`` command's options and the ``twin`` executable's ROS parameters, each checked, and
     what :class:`~.lockstep.Twin` takes. From Python, ``scenario`` may also be a
     :class:`~..physics.scenario.Scenario` or a mapping, ``bag`` a path, and ``algorithm``
-    hold classes, instances and (class, parameters) pairs."""
+    hold classes, instances and (class, parameters) pairs.
+
+    What some fields do in the twin (:class:`~.lockstep.Twin`): ``clock_period`` --
+    ``/clock`` is published every this much simulated time (the lockstep does not need it:
+    every message is tied to its tick, and at 1 ms each ``/clock`` message costs a delivery to
+    every node's time source, bench/README.md); ``namespace`` -- the actuator's nodes, topics
+    and the bag's topic names move under it (``/left/xj``), ``/clock`` stays global;
+    ``clock`` -- 'own' publishes ``/clock``, 'follow' runs each tick only once another
+    owner's ``/clock`` has reached it (a follower's results do not depend on the owner's
+    pace); ``real_time_factor`` -- paced to this many simulated seconds per wall second,
+    checked at every ``clock_period``, every ``/clock`` then on DDS so that a
+    ``use_sim_time`` node beside it sees each of its timer periods; ``followers`` -- the clock
+    owner starts once this many following twins are on the graph (discovery takes 0.4-1.2 s
+    here; a late follower misses no tick); ``sensor_seed`` -- the noise realisation of the
+    scenario's sensors; ``foxglove`` -- every message served live on this localhost port (0:
+    any free one; :mod:`..nodes.live`).
+    """
 
     valve_model: str = option('C2', 'valve model: a name of the registry '
                               '(servovalve-twin --help lists them)', _text, metavar='NAME')

@@ -85,8 +85,8 @@ class Twin:
         scenario -- a name, a file, or in Python a :class:`~..physics.scenario.Scenario` or a
         mapping --, periods, clock mode, namespace, monitor, algorithms, recording, live view),
         the same one the ``run`` command and the ``twin`` executable build from their options
-        and ROS parameters, so that a run from Python is the command's run. It records into
-        ``config.bag_dir()``: ``record=False`` for none
+        and ROS parameters, so that a run from Python is the command's run (what each field
+        does: its docstring). It records into ``config.bag_dir()``: ``record=False`` for none
     :param overrides: physical parameters over the design's (``{'M': 900.0}``)
     :param base_params: the design they apply to (default: the documented one; a replayed
         bag's)
@@ -97,21 +97,6 @@ class Twin:
         none: rcl would otherwise read the caller's own command line)
     :param domain_id: the DDS domain of a new context
     :param executor: 'events' (rclpy's EventsExecutor) or 'single' (SingleThreadedExecutor)
-
-    What each option does, by its :class:`~.config.TwinConfig` field: ``clock_period`` --
-    ``/clock`` is published every this much simulated time (the lockstep does not need it:
-    every message is tied to its tick, and at 1 ms each ``/clock`` message costs a delivery to
-    every node's time source, bench/README.md); ``namespace`` -- the actuator's nodes, topics
-    and the bag's topic names move under it (``/left/xj``), ``/clock`` stays global;
-    ``clock`` -- 'own' publishes ``/clock``, 'follow' runs each tick only once another
-    owner's ``/clock`` has reached it (a follower's results do not depend on the owner's
-    pace); ``real_time_factor`` -- paced to this many simulated seconds per wall second,
-    checked at every ``clock_period``, every ``/clock`` then on DDS so that a
-    ``use_sim_time`` node beside it sees each of its timer periods; ``followers`` -- the clock
-    owner starts once this many following twins are on the graph (discovery takes 0.4-1.2 s
-    here; a late follower misses no tick); ``sensor_seed`` -- the noise realisation of the
-    scenario's sensors; ``foxglove`` -- every message served live on this localhost port (0:
-    any free one; :mod:`..nodes.live`).
     """
 
     def __init__(self, config: TwinConfig, overrides: Mapping[str, Any] | None = None, *,
