@@ -18,6 +18,7 @@ import signal
 import sys
 
 from . import stopping
+from .errors import rcl_refusal
 
 
 def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
@@ -40,12 +41,11 @@ def _run(module: str, func: str = 'main', *, ros: bool = True) -> int:
         # a SIGINT after the import, before the executable set its own handlers
         _interrupted(ros)
     except RuntimeError as exc:
-        # rcl's refusal of the command line (a -p value YAML cannot parse, a params file it
-        # cannot read), wherever the executable hands it over: one line, exit 2
-        if type(exc).__module__ != 'rclpy._rclpy_pybind11':
+        # rcl's refusal of the command line, wherever the executable hands it over: one
+        # line, exit 2
+        if (line := rcl_refusal(exc)) is None:
             raise
-        print(f'{os.path.basename(sys.argv[0])}: error: '
-              f'{" ".join(str(exc).split(", at ")[0].split())}', file=sys.stderr)
+        print(f'{os.path.basename(sys.argv[0])}: error: {line}', file=sys.stderr)
         code = 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)

@@ -31,3 +31,14 @@ def one_line(exc: BaseException | str, limit: int = 600) -> str:
     hold a parameter file's text or a list of every allowed name)."""
     text = ' '.join(str(exc).split())
     return text[:limit] + ' ...' if len(text) > limit else text
+
+
+def rcl_refusal(exc: BaseException) -> str | None:
+    """rcl's refusal of a command line (a params file that is missing, a -p value YAML cannot
+    parse) as the one line a user is shown, None for any other error. Its classes are those
+    of the C extension as rclpy loads it (not the module object ``rclpy._rclpy_pybind11``: an
+    ``except`` naming that missed them), so known by their module's name -- which also keeps
+    this free of importing rclpy."""
+    if not isinstance(exc, RuntimeError) or type(exc).__module__ != 'rclpy._rclpy_pybind11':
+        return None
+    return one_line(str(exc).split(', at ')[0])

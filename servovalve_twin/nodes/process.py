@@ -19,7 +19,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from .. import stopping
-from ..errors import TwinError, one_line
+from ..errors import TwinError, one_line, rcl_refusal
 from .rosargs import asks_for_help, init_context, stray_arguments
 
 #: what a user's input can do wrong at start-up: one error line, exit 2 ((the last) a
@@ -79,7 +79,9 @@ def spin_standalone(factory: Callable[[], Node], args: Sequence[str] | None = No
         remove_ros_args(argv)
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as exc:                  # e.g. a params file that is missing
-        print(f'error: {_rcl_refusal(exc)}', file=sys.stderr)
+        if (line := rcl_refusal(exc)) is None:
+            raise
+        print(f'error: {line}', file=sys.stderr)
         return 2
     node = executor = None
     if stop:            # asked to stop while rclpy started: do not build (and compile) a node
@@ -134,18 +136,10 @@ def ros_main(name: str, body: Callable[[Context, Callable[[], bool]], int],
         print(f'{name}: error: {one_line(exc)}', file=sys.stderr)
         return 2
     except RuntimeError as exc:
-        print(f'{name}: error: {_rcl_refusal(exc)}', file=sys.stderr)
+        if (line := rcl_refusal(exc)) is None:
+            raise
+        print(f'{name}: error: {line}', file=sys.stderr)
         return 2
-
-
-def _rcl_refusal(exc: RuntimeError) -> str:
-    """rcl's refusal of the command line (a params file that is missing, a -p value YAML
-    cannot parse) as one line; any other RuntimeError is re-raised. Its classes are those of
-    the C extension as rclpy loads it (not the module object ``rclpy._rclpy_pybind11``: an
-    ``except`` naming that missed them), so known by their module's name."""
-    if type(exc).__module__ != 'rclpy._rclpy_pybind11':
-        raise exc
-    return one_line(str(exc).split(', at ')[0])
 
 
 def _run_body(name: str, body: Callable[[Context, Callable[[], bool]], int],

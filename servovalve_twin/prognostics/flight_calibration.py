@@ -204,7 +204,7 @@ def fit(records: Sequence[Mapping[str, Any]], faults: Sequence[str], alpha: floa
     miscoverage ``alpha``; ``model`` and ``free``: the fit's, whose packaged pooled entries
     ``diagnose`` applies beside the flight's own (:func:`with_pooled`; None: none)."""
     cal = fit_calibration(records, alpha=alpha)
-    records = stated_sizes(records, with_pooled(dict(cal), model, free) if model else cal)
+    records = stated_sizes(records, with_pooled(cal, model, free) if model else cal)
     u = verdict_fraction(records)
     cal['verdict_fraction'] = u
     cal['healthy_floor'] = {f: u * abs(to_g(f, FAULTS[f].demo)) for f in faults}

@@ -237,15 +237,15 @@ class TwinConfig:
                          'model_form': self.estimator != self.valve_model}))
         return out
 
-    def bag_dir(self) -> str | None:
-        """Where it records: ``bag``, or bags/<scenario>_<model>_<UTC time>; None without a
-        recording."""
+    def bag_dir(self, scenario_name: str) -> str | None:
+        """Where it records: ``bag``, or bags/<scenario_name>_<model>_<UTC time> (the name of
+        the scenario as loaded); None without a recording."""
         if not self.record:
             return None
         if self.bag:
             return str(self.bag)
-        from ..config import default_bag_dir, load_scenario
-        return str(default_bag_dir(load_scenario(self.scenario).name, self.valve_model))
+        from ..config import default_bag_dir
+        return str(default_bag_dir(scenario_name, self.valve_model))
 
     @property
     def shares_the_graph(self) -> bool:

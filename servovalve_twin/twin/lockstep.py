@@ -86,7 +86,7 @@ class Twin:
         mapping --, periods, clock mode, namespace, monitor, algorithms, recording, live view),
         the same one the ``run`` command and the ``twin`` executable build from their options
         and ROS parameters, so that a run from Python is the command's run (what each field
-        does: its docstring). It records into ``config.bag_dir()``: ``record=False`` for none
+        does: its docstring). It records into ``config.bag_dir(...)``: ``record=False`` for none
     :param overrides: physical parameters over the design's (``{'M': 900.0}``)
     :param base_params: the design they apply to (default: the documented one; a replayed
         bag's)
@@ -142,8 +142,8 @@ class Twin:
                                   real_time_factor=config.real_time_factor,
                                   followers=config.followers, namespace=self.namespace,
                                   stopped=lambda: self.stop_requested)
-            self._make_recording(types, config.bag_dir(), config.overwrite, keep_values,
-                                 on_flush, config.foxglove)
+            self._make_recording(types, config.bag_dir(self.scenario.name), config.overwrite,
+                                 keep_values, on_flush, config.foxglove)
             self.executor = EXECUTORS[executor](context=self.context)
             for n in self.nodes:
                 self.executor.add_node(n)
