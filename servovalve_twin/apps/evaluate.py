@@ -19,8 +19,8 @@ from ..bag.anybag import AnyBag, open_any_bag
 from ..bag.reader import FLOAT64, iter_float64_blocks
 from ..errors import BagError
 from ..physics.params import EhaParams
-from ..prognostics.algorithm import (AlgorithmRun, AlgorithmRunner, Watchdog, exits_refused,
-                                    load_algorithm)
+from ..prognostics.algorithm import AlgorithmRun, AlgorithmRunner, load_algorithm
+from ..prognostics.watchdog import Watchdog, exits_refused
 
 
 def _input_topics(bag: AnyBag, names) -> dict[str, str]:

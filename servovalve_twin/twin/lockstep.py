@@ -64,7 +64,8 @@ from ..nodes.sources import CommandGenerator, LoadSupply
 from ..physics.params import EhaParams
 from ..physics.simulate import OUTPUT_PERIOD_NS, effective_params, steps_per
 from ..physics.valves import get_monitor_model, get_valve_model
-from ..prognostics.algorithm import Watchdog, exits_refused, in_step_beats, load_algorithm
+from ..prognostics.algorithm import load_algorithm
+from ..prognostics.watchdog import Watchdog, exits_refused, in_step_beats
 from .graph import EXECUTORS, GraphClock, OwnerLeft, absolute_namespace
 from .config import (TwinConfig, TwinResult, check_clock_options, ros_param, ros_param_value,
                      scenario_label)
@@ -267,7 +268,7 @@ class Twin:
 
     def run(self, on_tick: Callable[[int, 'Twin'], None] | None = None) -> TwinResult:
         """Run the scenario; ``on_tick(k, twin)`` is called after each tick (faults, tests).
-        A user's algorithm runs under a :class:`~..prognostics.algorithm.Watchdog` (a step
+        A user's algorithm runs under a :class:`~..prognostics.watchdog.Watchdog` (a step
         that makes no progress for STEP_LIMIT_S ends the run with one line, the bag closed)
         and may not end the process (``os._exit``: the bag was left without its metadata)."""
         if not self.algorithms:

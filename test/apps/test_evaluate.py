@@ -159,8 +159,8 @@ def test_an_algorithm_that_blocks_is_stopped_by_the_watchdog(tmp_path, monkeypat
     """A step that blocks (a sleep of 10^6 s at t = 5 ms) held evaluate for ever; a module that
     blocks at import too. With the watchdog's limit at 0.5 s each ends in one line, exit 2."""
     from servovalve_twin.cli import main
-    from servovalve_twin.prognostics import algorithm
-    monkeypatch.setattr(algorithm, 'STEP_LIMIT_S', 0.5)
+    from servovalve_twin.prognostics import watchdog
+    monkeypatch.setattr(watchdog, 'STEP_LIMIT_S', 0.5)
     (tmp_path / 'stuck_alg.py').write_text(HOSTILE_ALGORITHMS)
     (tmp_path / 'stuck_import.py').write_text('import time\ntime.sleep(1e6)\n')
     monkeypatch.syspath_prepend(str(tmp_path))

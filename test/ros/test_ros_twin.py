@@ -636,8 +636,8 @@ def test_a_user_algorithm_cannot_hang_or_end_the_twin(tmp_path, monkeypatch, cap
     that waits between ticks are no stall."""
     from servovalve_twin.bag.reader import read_bag
     from servovalve_twin.cli import main
-    from servovalve_twin.prognostics import algorithm
-    monkeypatch.setattr(algorithm, 'STEP_LIMIT_S', 0.5)
+    from servovalve_twin.prognostics import watchdog
+    monkeypatch.setattr(watchdog, 'STEP_LIMIT_S', 0.5)
     (tmp_path / 'user_algs.py').write_text(HOSTILE_ALGORITHMS)
     monkeypatch.syspath_prepend(str(tmp_path))
     for cls, fragment in (('Stuck', 'algorithm Stuck made no progress for 0.5 s'),
@@ -651,7 +651,7 @@ def test_a_user_algorithm_cannot_hang_or_end_the_twin(tmp_path, monkeypatch, cap
         assert len(read_bag(bag).signals['t']) >= 5
     assert main(['run', '--valve-model', 'C2', '--no-bag', '--real-time-factor', '1',
                  '--algorithm', 'user_algs:Waiting']) == 0
-    assert os._exit is algorithm.os._exit and os._exit.__module__ == 'posix'
+    assert os._exit is watchdog.os._exit and os._exit.__module__ == 'posix'
 
 
 @pytest.mark.ros
