@@ -27,7 +27,8 @@ class Compare(Command):
     def main(self, args):
         from ..apps.compare import (PlotRows, compare_bags, coverage, coverage_warning,
                                     exceeded, format_table, parse_tolerances,
-                                    provenance_differences, run_span_ms, run_windows)
+                                    provenance_differences)
+        from ..apps.windows import run_span_ms, run_windows
         from ..apps.plots import plot_overlay
         from ..outputs import write_json
         tolerances = parse_tolerances(args.tolerance)

@@ -37,7 +37,7 @@ Confidence. A severity's 95 % interval comes from the fit's Jacobian, ``cov = s^
 hypothesis' own residuals: about ``n`` for a fit that leaves only white noise, so that the
 interval is then the spread of repeated flights (tested) -- or the catalog's bounds where the
 residuals do not move with the severity at the fit. The verdict's is joined with the
-likelihood-ratio interval along its severity (:func:`.fitting.ratio_interval`): a fit that
+likelihood-ratio interval along its severity (:func:`.fit_intervals.ratio_interval`): a fit that
 stops on a flat stretch of the cost -- static friction beyond the break-away the run reaches --
 has a zero Jacobian there and a Jacobian interval of zero width. With ``bootstrap`` = N, the
 verdict's interval is instead from N refits to the fitted signals plus moving blocks (50 ms)
@@ -71,8 +71,8 @@ from ..errors import TwinError
 from ..physics.faults import FAULTS
 from ..physics.params import PARAM_NAMES, EhaParams
 from .calibration import alpha_of, calibration_for, onset_widen
-from .fitting import (FREEABLE_BIAS, SIGNALS, Problem, bootstrap_intervals, effective_n, fit,
-                      free_interval, free_start, jacobian_interval, ratio_interval, start_grid)
+from .fit_intervals import bootstrap_intervals, free_interval, jacobian_interval, ratio_interval
+from .fitting import FREEABLE_BIAS, SIGNALS, Problem, effective_n, fit, free_start, start_grid
 from .modelform import apply_model_form, reported_severity
 from .rules import DETECTABLE, DIAGNOSABLE, PAIR_EVIDENCE, above_floor, onset_entry, sized
 from .verdict import HEALTHY, UNEXPLAINED, Candidate, Diagnosis

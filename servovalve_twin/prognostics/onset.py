@@ -15,8 +15,8 @@ import numpy as np
 
 from ..physics.faults import FAULTS
 from .rules import PAIR_EVIDENCE, sized
-from .fitting import (CHI2_95, SIGNALS, Problem, effective_n, fit, jacobian_interval,
-                      start_grid)
+from .fit_intervals import jacobian_interval
+from .fitting import CHI2_95, SIGNALS, Problem, effective_n, fit, start_grid
 from .verdict import HEALTHY, Candidate
 
 #: the onset screen: candidate instants over the window per single-fault hypothesis (the

@@ -9,8 +9,8 @@ import struct
 import pytest
 
 from bagmaker import f64, reference_messages, write_bag, write_long_bag
-from servovalve_twin.apps.compare import (bag_windows, compare_bags, error_metrics,
-                                          load_run)
+from servovalve_twin.apps.compare import compare_bags, error_metrics
+from servovalve_twin.apps.windows import bag_windows, load_run
 from servovalve_twin.bag import reader
 from servovalve_twin.errors import TwinError
 
@@ -171,7 +171,7 @@ def test_a_table_against_a_bag_names_the_ecu_and_phases_are_not_windows_twice(tm
     """A simulate table carries no ECU period: compared with the 1 ms bag, one warning says
     how to compare like with like; the paper's phases, each one of its named windows, are
     not printed a second time as phase1..phase6."""
-    from servovalve_twin.apps.compare import run_windows
+    from servovalve_twin.apps.windows import run_windows
     from servovalve_twin.cli import main
     from servovalve_twin.config import resolve_bag
     out = tmp_path / 'run.csv'
