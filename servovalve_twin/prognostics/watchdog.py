@@ -1,6 +1,7 @@
-"""The watch over a user's algorithm while it runs (:mod:`.algorithm`): a step, a block of
-steps, its import or its setup that makes no progress ends the run with one line, and
-``os._exit`` called from it is refused -- the host, not the algorithm, ends a run.
+"""The watch over a user's algorithm while it runs
+(:mod:`~servovalve_twin.prognostics.algorithm`): a step, a block of steps, its import or its
+setup that makes no progress ends the run with one line, and ``os._exit`` called from it is
+refused -- the host, not the algorithm, ends a run.
 """
 
 from __future__ import annotations
