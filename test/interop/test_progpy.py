@@ -251,3 +251,29 @@ def test_growth_rates_stay_on_their_physical_side():
     assert out[m.states.index('leakage_growth_growth')].tolist() == [0.0, 0.0, 7.0]
     assert out[m.states.index('null_bias_growth')].tolist() == [-1e-3, 0.0, 0.0]
     assert out[m.states.index('leakage_growth')].tolist() == [1.0, 3.0, 100.0]
+
+
+@pytest.mark.slow
+def test_the_hd_leak_example_holds_the_alarm_in_its_interval():
+    """doc/examples/progpy_hd_leak.py as a user runs it, a process of its own: progpy's
+    ParticleFilter on 0.4 s of an HD unit whose leak grows 10 x/s from 2 x, then MonteCarlo
+    from half of life. The leak within 5 %, the 90 % interval of the alarm time holding the
+    truth and the median remaining life within 30 % (seed 11: -4 %; seeds 11-16, none looked
+    at before the growth rate's roughening was chosen: -11 % to +28 %, every interval holding
+    the truth). With a fixed process noise of 20 on the rate (no roughening) seed 3 read
+    6.7 /s for 10 and the alarm 56 % late, its interval missing it."""
+    import re
+    import subprocess
+    import sys
+    from conftest import ROOT
+    out = subprocess.run([sys.executable, str(ROOT / 'doc' / 'examples' / 'progpy_hd_leak.py'),
+                          '--seed', '11'], capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr
+    print(out.stdout)
+    m = re.search(r'leak ([\d.]+) \(truth ([\d.]+)\).*alarm at ([\d.]+) s \[([\d.]+), '
+                  r'([\d.inf]+)\] \(truth ([\d.]+)\); RUL ([\d.]+) s', out.stdout)
+    assert m, out.stdout
+    leak, leak_true, toe, lo, hi, toe_true, rul = (float(g) for g in m.groups())
+    assert abs(leak / leak_true - 1) < 0.05
+    assert abs(rul / (toe_true - 0.4) - 1) < 0.30
+    assert lo <= toe_true <= hi
